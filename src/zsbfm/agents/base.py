@@ -1,0 +1,51 @@
+"""The agent protocol every algorithm implements.
+
+An agent is a frozen (hashable) dataclass of static settings with pure methods; all
+mutable state is the `state` pytree it returns, so the training loop can scan, vmap over
+seeds and checkpoint it without knowing the algorithm:
+
+    state            = agent.init(key)
+    state, metrics   = agent.update(state, dataset, key)   # samples its own batch
+    task             = agent.goal_task(params, goal_obs, context)
+    task             = agent.reward_task(params, obs, reward, context)
+    action           = agent.act(params, obs, task, key)
+
+`context` is one reward-free episode (obs [T+1, obs_dim], action [T, ...]) of the
+behaviour policy in the layout the task lives in; context-free agents ignore it, belief
+agents infer h from it. `params = agent.eval_params(state)` is what acting needs.
+"""
+
+from __future__ import annotations
+
+from typing import Any, Protocol
+
+import jax
+from flax import struct
+
+
+@struct.dataclass
+class Task:
+    """What a policy is conditioned on: z (task direction) and h (dynamics context).
+
+    z: float32[..., d]; h: float32[..., h_dim] (h_dim = 0 for context-free agents).
+    """
+
+    z: jax.Array
+    h: jax.Array
+
+
+@struct.dataclass
+class Context:
+    """One reward-free episode used to infer the dynamics context."""
+
+    obs: jax.Array     # [T+1, obs_dim]
+    action: jax.Array  # [T] or [T, action_dim]
+
+
+class Agent(Protocol):
+    def init(self, key: jax.Array) -> Any: ...
+    def update(self, state: Any, dataset: Any, key: jax.Array) -> tuple[Any, dict]: ...
+    def eval_params(self, state: Any) -> Any: ...
+    def goal_task(self, params: Any, goal_obs: jax.Array, context: Context) -> Task: ...
+    def reward_task(self, params: Any, obs: jax.Array, reward: jax.Array, context: Context) -> Task: ...
+    def act(self, params: Any, obs: jax.Array, task: Task, key: jax.Array) -> jax.Array: ...

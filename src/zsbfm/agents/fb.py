@@ -1,0 +1,223 @@
+"""Forward-Backward representations (Touati & Ollivier 2021) for discrete actions.
+
+The successor measure of the policy pi_z is modelled as
+    M^{pi_z}(s, a, ds+) ~= F(s, a, w)^T B(s+) rho(ds+),     w = [z; h],
+and the policy is greedy in Q(s, a) = min_k F_k(s, a, w)^T z.
+
+`FBAgent` is written as a small set of hooks so the Belief- and Rotation-FB flavours reuse
+everything here and override only what differs:
+    train_context(...)  -> h for a batch   (FB: empty, h_dim = 0)
+    train_z(...)        -> z for a batch   (FB: uniform sphere mixed with B(s))
+    context_task_h(...) -> h at test time  (FB: empty)
+The TD loss (`fb_loss`), the orthonormality loss and the z sampler are plain functions
+shared by every flavour and by the continuous-action variant.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from typing import Any
+
+import jax
+import jax.numpy as jnp
+import optax
+from flax import struct
+
+from zsbfm.agents.base import Context, Task
+from zsbfm.config import Config
+from zsbfm.data.samplers import Transitions, sample_states, sample_transitions
+from zsbfm.envs.base import Env
+from zsbfm.nets.fb import BackwardNet, TwinForward
+from zsbfm.ops.sphere import project_to_sphere, sample_sphere
+
+Array = jax.Array
+
+
+# --- Shared maths ------------------------------------------------------------------------
+
+def fb_loss(F: Array, B: Array, target_M: Array, gamma: float) -> tuple[Array, dict]:
+    """The FB temporal-difference loss, summed over the twin heads.
+
+    F:        [K, n, d]  F_k(s_i, a_i, w_i) for the batch's (s, a, w)
+    B:        [n, d]     B(s'_j) for the batch's next states
+    target_M: [n, n]     min_k Fbar_k(s'_i, pi(s'_i), w_i)^T Bbar(s'_j)   (stop-gradient)
+
+    L = sum_k [ 0.5 * mean_{i != j} (M_k[i, j] - gamma target_M[i, j])^2 - mean_i M_k[i, i] ]
+    with M_k = F_k B^T: the off-diagonal pairs estimate the measure on independent
+    s+ ~ rho, the diagonal rewards the observed transition s -> s'.
+    """
+    n = B.shape[0]
+    target_M = jax.lax.stop_gradient(target_M)
+    M = jnp.einsum("knd,md->knm", F, B)
+    off = 1.0 - jnp.eye(n)
+    offdiag = 0.5 * jnp.sum((M - gamma * target_M) ** 2 * off, axis=(1, 2)) / (n * (n - 1))
+    diag = -jnp.mean(jnp.diagonal(M, axis1=1, axis2=2), axis=1)
+    loss = jnp.sum(offdiag + diag)
+    return loss, {"fb_offdiag": jnp.sum(offdiag), "fb_diag": jnp.sum(diag),
+                  "M_diag": jnp.mean(jnp.diagonal(M, axis1=1, axis2=2)),
+                  "M_offdiag": jnp.sum(M * off) / (M.shape[0] * n * (n - 1))}
+
+
+def ortho_loss(B: Array) -> Array:
+    """Orthonormality of B over a batch: -2 mean diag(B B^T) + mean offdiag(B B^T)^2."""
+    n = B.shape[0]
+    cov = B @ B.T
+    off = 1.0 - jnp.eye(n)
+    return -2.0 * jnp.mean(jnp.diagonal(cov)) + jnp.sum((cov * off) ** 2) / (n * (n - 1))
+
+
+def mix_z(key: Array, z_prior: Array, z_states: Array, mix: float) -> Array:
+    """Per row: z_states with probability `mix`, else z_prior (one key, used once)."""
+    use_states = jax.random.uniform(key, z_prior.shape[:1]) < mix
+    return jnp.where(use_states[:, None], z_states, z_prior)
+
+
+def target_policy_weights(q: Array, policy: str, temperature: float) -> Array:
+    """Target-policy probabilities [n, A] from next-state Q values q [n, A]."""
+    if policy == "greedy":
+        return jax.nn.one_hot(jnp.argmax(q, -1), q.shape[-1])
+    if policy == "boltzmann":
+        return jax.nn.softmax(q / temperature, -1)
+    if policy == "uniform":  # a fixed policy: the measure of the uniform random walk
+        return jnp.full(q.shape, 1.0 / q.shape[-1])
+    raise ValueError(f"unknown target policy {policy!r}")
+
+
+# --- State ---------------------------------------------------------------------------------
+
+@struct.dataclass
+class FBParams:
+    F: Any
+    B: Any
+
+
+@struct.dataclass
+class FBState:
+    params: FBParams
+    target: FBParams
+    opt_state: Any
+    step: Array
+
+
+# --- Agent -----------------------------------------------------------------------------------
+
+@dataclasses.dataclass(frozen=True)
+class FBAgent:
+    """Vanilla FB with discrete actions. Static settings only; state lives in FBState."""
+
+    cfg: Config
+    env: Env
+
+    h_dim = 0  # dimension of the dynamics context h (0: context-free)
+
+    # -- networks ----------------------------------------------------------------------
+    @property
+    def F_net(self) -> TwinForward:
+        c = self.cfg
+        return TwinForward(c.d, self.env.n_actions, c.f_pre_hidden, c.f_pre_out, c.f_hidden)
+
+    @property
+    def B_net(self) -> BackwardNet:
+        return BackwardNet(self.cfg.d, self.cfg.b_hidden)
+
+    @property
+    def optimizer(self) -> optax.GradientTransformation:
+        return optax.adam(self.cfg.lr)
+
+    def normalize_obs(self, obs: Array) -> Array:
+        """Map observations from [obs_low, obs_high] to [-1, 1]."""
+        low = jnp.asarray(self.env.obs_low, jnp.float32)
+        high = jnp.asarray(self.env.obs_high, jnp.float32)
+        return 2.0 * (obs - low) / (high - low) - 1.0
+
+    def forward(self, F_params, obs: Array, task: Task) -> Array:
+        """F for all actions: [2, ..., n_actions, d]."""
+        w = jnp.concatenate([task.z, task.h], -1)
+        return self.F_net.apply(F_params, self.normalize_obs(obs), w)
+
+    def backward(self, B_params, obs: Array) -> Array:
+        """B(s): [..., d], on the sphere of radius sqrt(d)."""
+        return self.B_net.apply(B_params, self.normalize_obs(obs))
+
+    def q_values(self, params: FBParams, obs: Array, task: Task) -> Array:
+        """Q(s, a) = min_k F_k(s, a, w)^T z: [..., n_actions]."""
+        F = self.forward(params.F, obs, task)
+        return jnp.min(jnp.einsum("k...ad,...d->k...a", F, task.z), axis=0)
+
+    # -- protocol ----------------------------------------------------------------------
+    def init(self, key: Array) -> FBState:
+        k_F, k_B = jax.random.split(key)
+        obs = jnp.zeros((1, self.env.obs_dim))
+        task = Task(z=jnp.zeros((1, self.cfg.d)), h=jnp.zeros((1, self.h_dim)))
+        w = jnp.concatenate([task.z, task.h], -1)
+        params = FBParams(F=self.F_net.init(k_F, obs, w), B=self.B_net.init(k_B, obs))
+        return FBState(params=params, target=params, opt_state=self.optimizer.init(params),
+                       step=jnp.zeros((), jnp.int32))
+
+    def eval_params(self, state: FBState) -> FBParams:
+        return state.params
+
+    def update(self, state: FBState, dataset, key: Array) -> tuple[FBState, dict]:
+        """One gradient step on a fresh batch sampled from `dataset`."""
+        k_batch, k_h, k_z = jax.random.split(key, 3)
+        batch = sample_transitions(k_batch, dataset, self.cfg.batch_size)
+        h = self.train_context(state, dataset, batch, k_h)
+        z = self.train_z(state, dataset, batch, h, k_z)
+        task = Task(z=jax.lax.stop_gradient(z), h=jax.lax.stop_gradient(h))
+        grads, metrics = jax.grad(self.loss, has_aux=True)(state.params, state.target, batch, task)
+        updates, opt_state = self.optimizer.update(grads, state.opt_state, state.params)
+        params = optax.apply_updates(state.params, updates)
+        target = optax.incremental_update(params, state.target, self.cfg.tau)
+        return FBState(params=params, target=target, opt_state=opt_state, step=state.step + 1), metrics
+
+    def loss(self, params: FBParams, target: FBParams, batch: Transitions, task: Task):
+        """FB TD loss + ortho_coef * orthonormality loss for one batch."""
+        F_all = self.forward(params.F, batch.obs, task)                      # [2, n, A, d]
+        F = jnp.take_along_axis(F_all, batch.action[None, :, None, None], axis=2)[:, :, 0]
+        B_next = self.backward(params.B, batch.next_obs)                     # [n, d]
+        target_F = self.target_next_F(target, batch.next_obs, task)          # [2, n, d]
+        target_B = self.backward(target.B, batch.next_obs)
+        target_M = jnp.min(jnp.einsum("knd,md->knm", target_F, target_B), axis=0)
+        l_fb, metrics = fb_loss(F, B_next, target_M, self.cfg.gamma)
+        l_ortho = ortho_loss(B_next)
+        metrics = dict(metrics, fb_loss=l_fb, ortho_loss=l_ortho,
+                       q_mean=jnp.mean(jnp.einsum("knd,nd->kn", F, task.z)))
+        return l_fb + self.cfg.ortho_coef * l_ortho, metrics
+
+    def target_next_F(self, target: FBParams, next_obs: Array, task: Task) -> Array:
+        """Fbar(s', pi(s'), w) averaged over the target policy's actions: [2, n, d]."""
+        F_all = self.forward(target.F, next_obs, task)                       # [2, n, A, d]
+        q = jnp.min(jnp.einsum("knad,nd->kna", F_all, task.z), axis=0)
+        pi = target_policy_weights(q, self.cfg.target_policy, self.cfg.temperature)
+        return jnp.einsum("na,knad->knd", jax.lax.stop_gradient(pi), F_all)
+
+    # -- hooks for the Belief/Rotation flavours ---------------------------------------------
+    def train_context(self, state, dataset, batch: Transitions, key: Array) -> Array:
+        """h for each batch item: FB is context-free, h is empty [n, 0]."""
+        return jnp.zeros((batch.obs.shape[0], self.h_dim))
+
+    def train_z(self, state, dataset, batch: Transitions, h: Array, key: Array) -> Array:
+        """Training z: uniform on the sqrt(d)-sphere, or with prob z_mix B(s) of a dataset state."""
+        k_states, k_prior, k_mix = jax.random.split(key, 3)
+        n = batch.obs.shape[0]
+        z_states = self.backward(state.params.B, sample_states(k_states, dataset, n))
+        z_prior = sample_sphere(k_prior, n, self.cfg.d)
+        return jax.lax.stop_gradient(mix_z(k_mix, z_prior, z_states, self.cfg.z_mix))
+
+    def context_h(self, params: FBParams, context: Context) -> Array:
+        """h inferred from one reward-free episode: FB has none."""
+        return jnp.zeros((self.h_dim,))
+
+    # -- test time ---------------------------------------------------------------------------
+    def goal_task(self, params: FBParams, goal_obs: Array, context: Context) -> Task:
+        """Goal reaching: z = B(goal)."""
+        return Task(z=self.backward(params.B, goal_obs), h=self.context_h(params, context))
+
+    def reward_task(self, params: FBParams, obs: Array, reward: Array, context: Context) -> Task:
+        """Reward inference: z = sqrt(d) * normalize(sum_i r_i B(s_i)); obs [n, obs_dim], reward [n]."""
+        z = project_to_sphere(jnp.einsum("n,nd->d", reward, self.backward(params.B, obs)))
+        return Task(z=z, h=self.context_h(params, context))
+
+    def act(self, params: FBParams, obs: Array, task: Task, key: Array) -> Array:
+        """Greedy action argmax_a min_k F_k(s, a, w)^T z."""
+        return jnp.argmax(self.q_values(params, obs, task), axis=-1)

@@ -1,0 +1,159 @@
+"""Run configuration: one frozen dataclass, presets per (env, algo, size), validated early.
+
+`Config.preset(env, algo)` gives the CPU preset (sized to finish on a 2-core machine);
+`Config.preset(env, algo, size="paper")` gives the paper's GPU sizes (Table 4). Every
+value is checked in `__post_init__`, so a bad value fails with the field's name before
+anything is traced or compiled. Use `dataclasses.replace(cfg, field=value)` to change a
+field (it re-validates).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+from typing import Any
+
+ENVS = ("doors", "fourrooms")
+ALGOS = ("fb",)
+SIZES = ("cpu", "paper")
+TARGET_POLICIES = ("greedy", "boltzmann", "uniform")
+EPISODE_LEN = {"doors": 100, "fourrooms": 100}
+
+
+@dataclasses.dataclass(frozen=True)
+class Config:
+    # --- what to run ---------------------------------------------------------------------
+    env: str = "fourrooms"
+    algo: str = "fb"
+    size: str = "cpu"           # which preset the sizes came from: "cpu" or "paper" (GPU)
+    name: str = ""              # run name; "" -> "<env>-<algo>-<size>"
+    seed: int = 0               # master seed; seed i of the sweep uses split(PRNGKey(seed))[i]
+    num_seeds: int = 3          # seeds trained together with jax.vmap
+    runs_dir: str = "runs"
+
+    # --- data ------------------------------------------------------------------------------
+    n_train_layouts: int = 20
+    episodes_per_layout: int = 500
+    episode_len: int = 100      # must equal the environment's episode length
+    context_len: int = 100      # transitions per context window (belief methods)
+
+    # --- FB -----------------------------------------------------------------------------
+    d: int = 50                               # latent dimension of z, F, B
+    f_pre_hidden: tuple[int, ...] = (256,)    # preprocessor hidden layers
+    f_pre_out: int = 128                      # preprocessor output width
+    f_hidden: tuple[int, ...] = (256, 256)    # F trunk hidden layers
+    b_hidden: tuple[int, ...] = (256, 256)    # B hidden layers
+    lr: float = 3e-4
+    batch_size: int = 256
+    gamma: float = 0.98
+    tau: float = 0.01                         # Polyak rate of the target networks
+    z_mix: float = 0.5                        # probability that a training z is B(s)
+    ortho_coef: float = 1.0
+    target_policy: str = "greedy"             # "greedy" | "boltzmann" | "uniform"
+    temperature: float = 1.0                  # Boltzmann target-policy temperature
+
+    # --- schedule -------------------------------------------------------------------------
+    steps: int = 20_000          # gradient steps per seed
+    chunk_steps: int = 1_000     # steps per compiled chunk (progress/metrics/checkpoint)
+    checkpoint: bool = True      # write an orbax checkpoint after every chunk
+
+    # --- evaluation ------------------------------------------------------------------------
+    eval_episode_len: int = 100
+
+    def __post_init__(self):
+        def bad(field, value, allowed):
+            raise ValueError(f"Config.{field}={value!r} is invalid: expected {allowed}")
+
+        if self.env not in ENVS:
+            bad("env", self.env, f"one of {ENVS}")
+        if self.algo not in ALGOS:
+            bad("algo", self.algo, f"one of {ALGOS}")
+        if self.size not in SIZES:
+            bad("size", self.size, f"one of {SIZES}")
+        if self.target_policy not in TARGET_POLICIES:
+            bad("target_policy", self.target_policy, f"one of {TARGET_POLICIES}")
+        for f in ("num_seeds", "n_train_layouts", "episodes_per_layout", "episode_len",
+                  "context_len", "d", "f_pre_out", "batch_size", "steps", "chunk_steps",
+                  "eval_episode_len"):
+            v = getattr(self, f)
+            if not isinstance(v, int) or isinstance(v, bool) or v <= 0:
+                bad(f, v, "a positive integer")
+        for f in ("f_pre_hidden", "f_hidden", "b_hidden"):
+            v = getattr(self, f)
+            if not isinstance(v, tuple) or not v or any(not isinstance(h, int) or h <= 0 for h in v):
+                bad(f, v, "a non-empty tuple of positive integers")
+        if not 0.0 < self.gamma < 1.0:
+            bad("gamma", self.gamma, "0 < gamma < 1")
+        if not 0.0 < self.tau <= 1.0:
+            bad("tau", self.tau, "0 < tau <= 1")
+        if not 0.0 <= self.z_mix <= 1.0:
+            bad("z_mix", self.z_mix, "0 <= z_mix <= 1")
+        if not self.lr > 0:
+            bad("lr", self.lr, "lr > 0")
+        if self.ortho_coef < 0:
+            bad("ortho_coef", self.ortho_coef, "ortho_coef >= 0")
+        if not self.temperature > 0:
+            bad("temperature", self.temperature, "temperature > 0")
+        if self.batch_size < 2:
+            bad("batch_size", self.batch_size, "batch_size >= 2 (the FB loss pairs batch items)")
+        if self.episode_len != EPISODE_LEN[self.env]:
+            bad("episode_len", self.episode_len, f"{EPISODE_LEN[self.env]} for env {self.env!r}")
+        if self.context_len > self.episode_len:
+            bad("context_len", self.context_len,
+                f"at most the episode length ({self.episode_len}): a context is one episode's window")
+        if self.steps % self.chunk_steps:
+            bad("steps", self.steps, f"a multiple of chunk_steps={self.chunk_steps}")
+        if self.env == "doors" and self.n_train_layouts > 29:
+            bad("n_train_layouts", self.n_train_layouts,
+                "at most 29 for doors (49 layouts, 20 held out for test)")
+
+    # -- derived --------------------------------------------------------------------------
+    @property
+    def run_name(self) -> str:
+        return self.name or f"{self.env}-{self.algo}-{self.size}"
+
+    @property
+    def num_chunks(self) -> int:
+        return self.steps // self.chunk_steps
+
+    # -- presets and (de)serialisation -----------------------------------------------------
+    @staticmethod
+    def preset(env: str = "fourrooms", algo: str = "fb", size: str = "cpu", **overrides) -> "Config":
+        """The preset for (env, algo, size), with `overrides` applied on top.
+
+        size="cpu": the default, sized for a 2-core CPU (minutes per seed).
+        size="paper": the paper's GPU sizes (Table 4: d=100 discrete, F (1024, 1024),
+        B (256, 256, 256), batch 1024, lr 1e-4, 1M steps); hours on a GPU.
+        """
+        if size not in SIZES:
+            raise ValueError(f"Config.size={size!r} is invalid: expected one of {SIZES}")
+        base: dict[str, Any] = dict(env=env, algo=algo, size=size)
+        base.update(_PRESETS.get((env, size), {}))
+        base.update(overrides)
+        return Config(**base)
+
+    def to_dict(self) -> dict:
+        return dataclasses.asdict(self)
+
+    @staticmethod
+    def from_dict(d: dict) -> "Config":
+        fields = {f.name: f for f in dataclasses.fields(Config)}
+        unknown = set(d) - set(fields)
+        if unknown:
+            raise ValueError(f"unknown Config fields {sorted(unknown)}")
+        return Config(**{k: tuple(v) if isinstance(v, list) else v for k, v in d.items()})
+
+    def to_json(self) -> str:
+        return json.dumps(self.to_dict(), indent=2)
+
+
+_PAPER_DISCRETE = dict(d=100, f_pre_hidden=(1024,), f_pre_out=512, f_hidden=(1024, 1024),
+                       b_hidden=(256, 256, 256), lr=1e-4, batch_size=1024, gamma=0.99,
+                       tau=0.05, steps=1_000_000, chunk_steps=10_000)
+
+_PRESETS: dict[tuple[str, str], dict[str, Any]] = {
+    ("fourrooms", "cpu"): dict(n_train_layouts=20, episodes_per_layout=500),
+    ("fourrooms", "paper"): dict(n_train_layouts=20, episodes_per_layout=500, **_PAPER_DISCRETE),
+    ("doors", "cpu"): dict(n_train_layouts=20, episodes_per_layout=500),
+    ("doors", "paper"): dict(n_train_layouts=20, episodes_per_layout=500, **_PAPER_DISCRETE),
+}

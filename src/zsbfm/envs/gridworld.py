@@ -1,0 +1,239 @@
+"""Randomized gridworlds in jax.numpy: Randomized Doors and Randomized Four-Rooms.
+
+Both share one mechanism (`GridWorld`): an H x W grid with a border of walls, an agent at
+integer cell (x, y), four actions (0 up = y-1, 1 down = y+1, 2 left = x-1, 3 right = x+1);
+moving into a wall is a no-op. The observation is (x, y) only, so the layout is hidden.
+A *layout family* differs only in how a layout is drawn from a small integer parameter
+vector (`sample_params`) and turned into walls (`walls_from_params`), both in jnp.
+
+The fixed train and test layouts are drawn with the same jnp sampler from fixed keys on
+the host, once, with duplicates removed; train layouts never equal a test layout.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import functools
+from typing import Callable
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+from flax import struct
+
+from zsbfm.envs.base import EnvState
+
+Array = jax.Array
+
+# (dx, dy) per action: up, down, left, right (y grows downwards, as in the pictures).
+ACTION_DELTAS = np.array([[0, -1], [0, 1], [-1, 0], [1, 0]], dtype=np.int32)
+ACTION_NAMES = ("up", "down", "left", "right")
+
+
+@struct.dataclass
+class GridContext:
+    """One layout. walls: bool[H, W], True = wall, indexed walls[y, x]."""
+
+    walls: Array
+
+
+def _border(h: int, w: int) -> Array:
+    y, x = jnp.mgrid[0:h, 0:w]
+    return (x == 0) | (y == 0) | (x == w - 1) | (y == h - 1)
+
+
+# --- Layout families -------------------------------------------------------------------
+
+def doors_sample_params(key: Array) -> Array:
+    """Randomized Doors: the open row (1..7) of the door in each of the walls x=3, x=5."""
+    return jax.random.randint(key, (2,), 1, 8)
+
+
+def doors_walls(params: Array) -> Array:
+    """9x9 grid, full vertical walls at x=3 and x=5, one door each at rows params[0], params[1]."""
+    y, x = jnp.mgrid[0:9, 0:9]
+    walls = _border(9, 9) | (x == 3) | (x == 5)
+    walls = walls & ~((x == 3) & (y == params[0])) & ~((x == 5) & (y == params[1]))
+    return walls
+
+
+def fourrooms_sample_params(key: Array) -> Array:
+    """Randomized Four-Rooms: (wall column c, wall row r, door rows/cols in each segment).
+
+    c, r in 3..7; the vertical wall x=c is split by r into an upper (rows 1..r-1) and a
+    lower (rows r+1..9) segment, the horizontal wall y=r by c into a left (cols 1..c-1)
+    and a right (cols c+1..9) segment; each segment has exactly one door.
+    """
+    kc, kr, k1, k2, k3, k4 = jax.random.split(key, 6)
+    c = jax.random.randint(kc, (), 3, 8)
+    r = jax.random.randint(kr, (), 3, 8)
+    door_up = jax.random.randint(k1, (), 1, r)
+    door_down = jax.random.randint(k2, (), r + 1, 10)
+    door_left = jax.random.randint(k3, (), 1, c)
+    door_right = jax.random.randint(k4, (), c + 1, 10)
+    return jnp.stack([c, r, door_up, door_down, door_left, door_right])
+
+
+def fourrooms_walls(params: Array) -> Array:
+    """11x11 grid with the walls x=c, y=r and four doors (see `fourrooms_sample_params`)."""
+    c, r, du, dd, dl, dr = (params[i] for i in range(6))
+    y, x = jnp.mgrid[0:11, 0:11]
+    walls = _border(11, 11) | (x == c) | (y == r)
+    doors = ((x == c) & ((y == du) | (y == dd))) | ((y == r) & ((x == dl) | (x == dr)))
+    return walls & ~doors
+
+
+@dataclasses.dataclass(frozen=True)
+class LayoutFamily:
+    name: str
+    size: int
+    sample_params: Callable[[Array], Array]
+    walls_from_params: Callable[[Array], Array]
+    start: tuple[int, int]  # evaluation start cell (x, y)
+    goals: tuple[tuple[int, int], ...]  # evaluation goal cells (x, y)
+    max_layouts: int | None  # number of distinct layouts, if small
+
+
+FAMILIES = {
+    "doors": LayoutFamily("doors", 9, doors_sample_params, doors_walls,
+                          start=(1, 1), goals=((7, 4), (7, 1), (7, 7)), max_layouts=49),
+    "fourrooms": LayoutFamily("fourrooms", 11, fourrooms_sample_params, fourrooms_walls,
+                              start=(1, 1), goals=((8, 8), (2, 8), (8, 2)), max_layouts=None),
+}
+
+N_TEST_LAYOUTS = 20
+_TEST_SEED, _TRAIN_SEED = 2024, 0
+
+
+def fixed_layout_walls(family: str, n_train: int) -> tuple[np.ndarray, np.ndarray]:
+    """The fixed (train, test) layouts as numpy walls: bool[n_train, H, W], bool[20, H, W].
+
+    Drawn with the family's own jnp sampler from fixed keys; the 20 test layouts depend
+    only on the family, so every n_train shares the same held-out set.
+    """
+    with jax.ensure_compile_time_eval():  # callable from inside a jit trace
+        train, test = _fixed_layout_params(family, n_train)
+        walls = jax.vmap(FAMILIES[family].walls_from_params)
+        return np.asarray(walls(jnp.asarray(train))), np.asarray(walls(jnp.asarray(test)))
+
+
+@functools.lru_cache(maxsize=None)
+def _fixed_layout_params(family: str, n_train: int) -> tuple[np.ndarray, np.ndarray]:
+    fam = FAMILIES[family]
+
+    @jax.jit
+    def sample(key):
+        params = jax.vmap(fam.sample_params)(jax.random.split(key, 256))
+        return params, jax.vmap(fam.walls_from_params)(params)
+
+    def draw(seed: int, n: int, exclude: set) -> tuple[np.ndarray, set]:
+        # Distinct by walls, not by parameters: equal walls are the same dynamics.
+        seen, out, key = set(exclude), [], jax.random.PRNGKey(seed)
+        while len(out) < n:
+            key, sub = jax.random.split(key)
+            params, walls = (np.asarray(a) for a in sample(sub))
+            for p, w in zip(params, walls):
+                if w.tobytes() not in seen:
+                    seen.add(w.tobytes())
+                    out.append(p)
+                    if len(out) == n:
+                        break
+        return np.stack(out).astype(np.int32), seen
+
+    test, test_walls = draw(_TEST_SEED, N_TEST_LAYOUTS, set())
+    train, _ = draw(_TRAIN_SEED, n_train, test_walls)
+    return train, test
+
+
+@dataclasses.dataclass(frozen=True)
+class GridWorld:
+    """A randomized gridworld (see module docstring). Hashable: usable as a static arg."""
+
+    family: str
+    n_train: int = 20
+    episode_len: int = 100
+
+    discrete = True
+    obs_dim = 2
+    action_dim = 0
+    n_actions = 4
+
+    def __post_init__(self):
+        fam = FAMILIES[self.family]
+        if self.n_train < 1:
+            raise ValueError(f"n_train must be >= 1, got {self.n_train}")
+        if fam.max_layouts is not None and self.n_train > fam.max_layouts - N_TEST_LAYOUTS:
+            raise ValueError(
+                f"{self.family} has {fam.max_layouts} layouts, {N_TEST_LAYOUTS} held out for test: "
+                f"n_train must be <= {fam.max_layouts - N_TEST_LAYOUTS}, got {self.n_train}")
+        if self.episode_len < 1:
+            raise ValueError(f"episode_len must be >= 1, got {self.episode_len}")
+
+    # -- static description -------------------------------------------------------------
+    @property
+    def name(self) -> str:
+        return self.family
+
+    @property
+    def size(self) -> int:
+        return FAMILIES[self.family].size
+
+    @property
+    def obs_low(self) -> tuple[float, ...]:
+        return (0.0, 0.0)
+
+    @property
+    def obs_high(self) -> tuple[float, ...]:
+        return (float(self.size - 1),) * 2
+
+    # -- contexts -----------------------------------------------------------------------
+    def contexts(self, split: str) -> GridContext:
+        """Stacked fixed layouts of a split: walls bool[n, H, W]."""
+        if split not in ("train", "test"):
+            raise ValueError(f"split must be 'train' or 'test', got {split!r}")
+        train, test = fixed_layout_walls(self.family, self.n_train)
+        return GridContext(walls=jnp.asarray(train if split == "train" else test))
+
+    def sample_contexts(self, key: Array, n: int) -> GridContext:
+        """n fresh random layouts (jittable; may coincide with fixed ones)."""
+        fam = FAMILIES[self.family]
+        params = jax.vmap(fam.sample_params)(jax.random.split(key, n))
+        return GridContext(walls=jax.vmap(fam.walls_from_params)(params))
+
+    def eval_start(self, ctx: GridContext) -> Array:
+        """Evaluation start observation: the family's fixed start cell."""
+        return jnp.asarray(FAMILIES[self.family].start, jnp.float32)
+
+    def eval_goals(self, ctx: GridContext) -> Array:
+        """Evaluation goal observations float32[n_goals, 2] (same cells for every layout)."""
+        return jnp.asarray(FAMILIES[self.family].goals, jnp.float32)
+
+    # -- dynamics -----------------------------------------------------------------------
+    def reset(self, key: Array, ctx: GridContext, goal: Array | None = None,
+              start: Array | None = None) -> EnvState:
+        """Start at `start` (x, y) or, if None, at a uniformly random free cell."""
+        if start is None:
+            free = ~ctx.walls.reshape(-1)
+            cell = jax.random.categorical(key, jnp.where(free, 0.0, -jnp.inf))
+            pos = jnp.stack([cell % self.size, cell // self.size]).astype(jnp.int32)
+        else:
+            pos = jnp.asarray(start).astype(jnp.int32)
+        has_goal = goal is not None
+        goal = jnp.zeros(2, jnp.float32) if goal is None else jnp.asarray(goal, jnp.float32)
+        return EnvState(obs=pos.astype(jnp.float32), reward=jnp.zeros((), jnp.float32),
+                        done=jnp.zeros((), bool), t=jnp.zeros((), jnp.int32), goal=goal,
+                        has_goal=jnp.asarray(has_goal), ctx=ctx, inner=pos)
+
+    def step(self, state: EnvState, action: Array) -> EnvState:
+        """Move one cell unless blocked; reward 1 on entering the goal cell."""
+        pos = state.inner
+        nxt = pos + jnp.asarray(ACTION_DELTAS)[action]
+        blocked = state.ctx.walls[nxt[1], nxt[0]]
+        pos = jnp.where(blocked, pos, nxt)
+        reached = state.has_goal & jnp.all(pos == jnp.round(state.goal).astype(jnp.int32))
+        t = state.t + 1
+        return state.replace(obs=pos.astype(jnp.float32), reward=reached.astype(jnp.float32),
+                             done=reached | (t >= self.episode_len), t=t, inner=pos)
+
+    def random_action(self, key: Array) -> Array:
+        return jax.random.randint(key, (), 0, self.n_actions)

@@ -1,0 +1,79 @@
+"""A finished training run: config, per-seed parameters, results and metrics, on disk.
+
+Layout of a run directory (`runs/<name>/` by default):
+
+    config.json     the Config
+    results.json    success per split and seed, per layout, per goal, wall times
+    metrics.jsonl   one line per compiled chunk: step and each metric per seed
+    params/         orbax checkpoint of the agent's evaluation parameters (leading axis = seeds)
+    checkpoints/    orbax checkpoints of the full training state, for resuming
+    *.png           plots
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import os
+import shutil
+from typing import Any
+
+import jax
+import orbax.checkpoint as ocp
+
+from zsbfm.config import Config
+
+
+@dataclasses.dataclass
+class Run:
+    cfg: Config
+    params: Any                 # evaluation params, every leaf with a leading seed axis
+    results: dict               # {"train": [success per seed], "test": [...], ...}
+    metrics: list = dataclasses.field(default_factory=list)
+
+    def save(self, path: str | None = None) -> str:
+        """Write config, results, metrics and an orbax checkpoint of params to `path`."""
+        path = os.path.abspath(path or os.path.join(self.cfg.runs_dir, self.cfg.run_name))
+        os.makedirs(path, exist_ok=True)
+        with open(os.path.join(path, "config.json"), "w") as f:
+            f.write(self.cfg.to_json())
+        with open(os.path.join(path, "results.json"), "w") as f:
+            json.dump(self.results, f, indent=2)
+        with open(os.path.join(path, "metrics.jsonl"), "w") as f:
+            for row in self.metrics:
+                f.write(json.dumps(row) + "\n")
+        params_dir = os.path.join(path, "params")
+        if os.path.exists(params_dir):
+            shutil.rmtree(params_dir)
+        ckptr = ocp.StandardCheckpointer()
+        ckptr.save(params_dir, self.params)
+        ckptr.wait_until_finished()
+        return path
+
+
+def abstract_params(cfg: Config):
+    """Shapes/dtypes of the stacked evaluation params of `cfg` (no computation)."""
+    from zsbfm.agents import make_agent
+    from zsbfm.envs import make_env
+
+    env = make_env(cfg.env, n_train=cfg.n_train_layouts, episode_len=cfg.episode_len)
+    agent = make_agent(cfg, env)
+    keys = jax.random.split(jax.random.PRNGKey(0), cfg.num_seeds)
+    return jax.eval_shape(lambda k: jax.vmap(lambda kk: agent.eval_params(agent.init(kk)))(k), keys)
+
+
+def load(path: str) -> Run:
+    """Load a run saved by `Run.save` (or written by `zsbfm.train`)."""
+    path = os.path.abspath(path)
+    if not os.path.exists(os.path.join(path, "config.json")):
+        raise FileNotFoundError(f"{path} is not a zsbfm run directory (no config.json)")
+    with open(os.path.join(path, "config.json")) as f:
+        cfg = Config.from_dict(json.load(f))
+    with open(os.path.join(path, "results.json")) as f:
+        results = json.load(f)
+    metrics = []
+    if os.path.exists(os.path.join(path, "metrics.jsonl")):
+        with open(os.path.join(path, "metrics.jsonl")) as f:
+            metrics = [json.loads(line) for line in f if line.strip()]
+    params = ocp.StandardCheckpointer().restore(os.path.join(path, "params"), abstract_params(cfg))
+    return Run(cfg=cfg, params=params, results=results, metrics=metrics)
