@@ -39,10 +39,10 @@ class Config:
 
     # --- FB -----------------------------------------------------------------------------
     d: int = 50                               # latent dimension of z, F, B
-    f_pre_hidden: tuple[int, ...] = (256,)    # preprocessor hidden layers
+    f_pre_hidden: tuple[int, ...] = (128,)    # preprocessor hidden layers
     f_pre_out: int = 128                      # preprocessor output width
-    f_hidden: tuple[int, ...] = (256, 256)    # F trunk hidden layers
-    b_hidden: tuple[int, ...] = (256, 256)    # B hidden layers
+    f_hidden: tuple[int, ...] = (256,)        # F trunk hidden layers
+    b_hidden: tuple[int, ...] = (128, 128)    # B hidden layers
     lr: float = 3e-4
     batch_size: int = 256
     gamma: float = 0.98
@@ -53,7 +53,7 @@ class Config:
     temperature: float = 1.0                  # Boltzmann target-policy temperature
 
     # --- schedule -------------------------------------------------------------------------
-    steps: int = 20_000          # gradient steps per seed
+    steps: int = 10_000          # gradient steps per seed
     chunk_steps: int = 1_000     # steps per compiled chunk (progress/metrics/checkpoint)
     checkpoint: bool = True      # write an orbax checkpoint after every chunk
 
@@ -142,6 +142,30 @@ class Config:
         if unknown:
             raise ValueError(f"unknown Config fields {sorted(unknown)}")
         return Config(**{k: tuple(v) if isinstance(v, list) else v for k, v in d.items()})
+
+    def with_overrides(self, overrides: list[str] | tuple[str, ...]) -> "Config":
+        """Apply "field=value" strings (CLI form); tuples are comma-separated ints."""
+        fields = {f.name: f for f in dataclasses.fields(Config)}
+        changes: dict[str, Any] = {}
+        for item in overrides:
+            if "=" not in item:
+                raise ValueError(f"override {item!r} must look like field=value")
+            k, v = item.split("=", 1)
+            if k not in fields:
+                raise ValueError(f"unknown Config field {k!r}; fields: {', '.join(fields)}")
+            current = getattr(self, k)
+            try:
+                if isinstance(current, bool):
+                    if v.lower() not in ("true", "false", "1", "0"):
+                        raise ValueError(v)
+                    changes[k] = v.lower() in ("true", "1")
+                elif isinstance(current, tuple):
+                    changes[k] = tuple(int(x) for x in v.split(",") if x)
+                else:
+                    changes[k] = type(current)(float(v) if isinstance(current, int) and "e" in v else v)
+            except ValueError:
+                raise ValueError(f"Config.{k}: cannot parse {v!r} as {type(current).__name__}") from None
+        return dataclasses.replace(self, **changes)
 
     def to_json(self) -> str:
         return json.dumps(self.to_dict(), indent=2)

@@ -125,10 +125,14 @@ class FBAgent:
         return optax.adam(self.cfg.lr)
 
     def normalize_obs(self, obs: Array) -> Array:
-        """Map observations from [obs_low, obs_high] to [-1, 1]."""
+        """Map observations from [obs_low, obs_high] to [0, 1].
+
+        Not [-1, 1]: there the grid's centre cell maps to the zero vector, whose first
+        layer output is the bias alone, so at initialisation B(centre) = 0 exactly.
+        """
         low = jnp.asarray(self.env.obs_low, jnp.float32)
         high = jnp.asarray(self.env.obs_high, jnp.float32)
-        return 2.0 * (obs - low) / (high - low) - 1.0
+        return (obs - low) / (high - low)
 
     def forward(self, F_params, obs: Array, task: Task) -> Array:
         """F for all actions: [2, ..., n_actions, d]."""

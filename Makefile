@@ -1,0 +1,44 @@
+# zsbfm: `make train` and `make test` set everything up on a fresh machine.
+ENV    ?= fourrooms
+ALGO   ?= fb
+SEEDS  ?= 3
+SIZE   ?= cpu
+ARGS   ?=
+PYTHON ?= python3
+VENV   := .venv
+PY     := $(VENV)/bin/python
+STAMP  := $(VENV)/.installed
+
+.PHONY: train test test-all bench data clean help
+
+help:
+	@echo "make train [ENV=fourrooms|doors] [ALGO=fb] [SEEDS=3] [SIZE=cpu|paper] [ARGS='--set steps=2000']"
+	@echo "make test        fast test suite (CPU, minutes)"
+	@echo "make test-all    including slow tests"
+	@echo "make bench       throughput benchmarks"
+	@echo "make data        collect and save the ENV dataset"
+
+$(STAMP): pyproject.toml
+	test -x $(PY) || $(PYTHON) -m venv $(VENV)
+	$(PY) -m pip install -q --upgrade pip
+	$(PY) -m pip install -q -e '.[dev]'
+	touch $(STAMP)
+
+train: $(STAMP)
+	$(PY) -m zsbfm train --env $(ENV) --algo $(ALGO) --seeds $(SEEDS) --size $(SIZE) $(ARGS)
+
+# pytest exits 5 when it collects no tests; make treats any non-zero exit as failure.
+test: $(STAMP)
+	$(PY) -m pytest -q
+
+test-all: $(STAMP)
+	$(PY) -m pytest -q -m ""
+
+bench: $(STAMP)
+	$(PY) benchmarks/throughput.py
+
+data: $(STAMP)
+	$(PY) -m zsbfm collect --env $(ENV)
+
+clean:
+	rm -rf runs datasets .pytest_cache

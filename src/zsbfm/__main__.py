@@ -1,0 +1,3 @@
+from zsbfm.cli import main
+
+main()

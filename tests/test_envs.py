@@ -1,0 +1,182 @@
+"""Gridworld mechanics checked against an independent BFS over the wall arrays."""
+
+from collections import deque
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+import zsbfm
+from zsbfm.envs import index_contexts
+
+DELTAS = {0: (0, -1), 1: (0, 1), 2: (-1, 0), 3: (1, 0)}
+
+
+def bfs(walls, start):
+    """Distances (dict (x, y) -> steps) from start over free cells, 4-connected."""
+    h, w = walls.shape
+    dist, q = {start: 0}, deque([start])
+    while q:
+        x, y = q.popleft()
+        for dx, dy in DELTAS.values():
+            nx, ny = x + dx, y + dy
+            if 0 <= nx < w and 0 <= ny < h and not walls[ny, nx] and (nx, ny) not in dist:
+                dist[(nx, ny)] = dist[(x, y)] + 1
+                q.append((nx, ny))
+    return dist
+
+
+def free_cells(walls):
+    ys, xs = np.nonzero(~walls)
+    return set(zip(xs.tolist(), ys.tolist()))
+
+
+def all_layouts(name, n_train):
+    env = zsbfm.make_env(name, n_train=n_train)
+    return env, np.asarray(env.contexts("train").walls), np.asarray(env.contexts("test").walls)
+
+
+@pytest.mark.parametrize("name,n_train", [("doors", 29), ("fourrooms", 50)])
+def test_every_free_cell_reachable_and_border_closed(name, n_train):
+    env, train, test = all_layouts(name, n_train)
+    for walls in np.concatenate([train, test]):
+        assert walls[0].all() and walls[-1].all() and walls[:, 0].all() and walls[:, -1].all()
+        start = env.eval_start(None)
+        dist = bfs(walls, tuple(int(v) for v in start))
+        assert set(dist) == free_cells(walls)
+        for g in np.asarray(env.eval_goals(None)).astype(int):
+            assert tuple(g) in dist, "every evaluation goal must be reachable"
+
+
+def rooms_and_doors_fourrooms(walls):
+    """Split the 11x11 layout into its four rooms (by flood fill with doors closed)."""
+    # wall column/row: the interior column/row that is mostly wall
+    c = int(np.argmax(walls[1:-1, 1:-1].sum(0))) + 1
+    r = int(np.argmax(walls[1:-1, 1:-1].sum(1))) + 1
+    doors = [(x, y) for (x, y) in free_cells(walls) if x == c or y == r]
+    closed = walls.copy()
+    for x, y in doors:
+        closed[y, x] = True
+    rooms = []
+    remaining = free_cells(closed)
+    while remaining:
+        cell = min(remaining)
+        room = set(bfs(closed, cell))
+        rooms.append(room)
+        remaining -= room
+    return rooms, doors
+
+
+def test_fourrooms_each_adjacent_pair_joined_by_exactly_one_door():
+    _, train, test = all_layouts("fourrooms", 50)
+    for walls in np.concatenate([train, test]):
+        rooms, doors = rooms_and_doors_fourrooms(walls)
+        assert len(rooms) == 4
+        assert len(doors) == 4
+        room_of = {cell: i for i, room in enumerate(rooms) for cell in room}
+        pairs = []
+        for x, y in doors:
+            touching = {room_of[(x + dx, y + dy)] for dx, dy in DELTAS.values() if (x + dx, y + dy) in room_of}
+            assert len(touching) == 2, "a door joins exactly two rooms"
+            pairs.append(frozenset(touching))
+        assert len(set(pairs)) == 4, "four distinct adjacent pairs, one door each"
+
+
+def test_doors_one_door_per_wall():
+    _, train, test = all_layouts("doors", 29)
+    for walls in np.concatenate([train, test]):
+        for x in (3, 5):
+            assert (~walls[1:-1, x]).sum() == 1
+
+
+@pytest.mark.parametrize("name,n_train", [("doors", 29), ("fourrooms", 50)])
+def test_train_and_test_layouts_disjoint_and_distinct(name, n_train):
+    _, train, test = all_layouts(name, n_train)
+    tr = {w.tobytes() for w in train}
+    te = {w.tobytes() for w in test}
+    assert len(tr) == n_train and len(te) == 20
+    assert not tr & te
+
+
+def test_test_layouts_do_not_depend_on_n_train():
+    _, _, t10 = all_layouts("fourrooms", 10)
+    _, _, t30 = all_layouts("fourrooms", 30)
+    np.testing.assert_array_equal(t10, t30)
+
+
+@pytest.mark.parametrize("name", ["doors", "fourrooms"])
+def test_step_matches_walls_under_vmap(name):
+    """Random states and actions in many layouts at once: move unless the target is a wall."""
+    env = zsbfm.make_env(name, n_train=20)
+    ctxs = env.contexts("train")
+    n = ctxs.walls.shape[0]
+    key = jax.random.PRNGKey(0)
+    k_reset, k_act = jax.random.split(key)
+    states = jax.jit(jax.vmap(env.reset))(jax.random.split(k_reset, n), ctxs)
+    walls = np.asarray(ctxs.walls)
+    for i, k in enumerate(jax.random.split(k_act, 30)):
+        actions = jax.random.randint(k, (n,), 0, 4)
+        nxt = jax.jit(jax.vmap(env.step))(states, actions)
+        for j in range(n):
+            x, y = np.asarray(states.obs[j]).astype(int)
+            dx, dy = DELTAS[int(actions[j])]
+            expect = (x, y) if walls[j, y + dy, x + dx] else (x + dx, y + dy)
+            assert tuple(np.asarray(nxt.obs[j]).astype(int)) == expect
+            assert not walls[j, expect[1], expect[0]]
+        states = nxt
+
+
+def test_goal_reward_and_time_limit():
+    env = zsbfm.make_env("fourrooms", n_train=5, episode_len=5)
+    ctx = index_contexts(env.contexts("train"), 0)
+    s = env.reset(jax.random.PRNGKey(0), ctx, goal=jnp.array([2.0, 1.0]), start=jnp.array([1, 1]))
+    s = env.step(s, 3)  # right, onto the goal
+    assert float(s.reward) == 1.0 and bool(s.done)
+    s = env.reset(jax.random.PRNGKey(0), ctx, start=jnp.array([1, 1]))
+    for t in range(5):
+        assert not bool(s.done)
+        s = env.step(s, 0)
+        assert float(s.reward) == 0.0
+    assert bool(s.done) and int(s.t) == 5
+
+
+def test_sample_contexts_are_valid_layouts():
+    env = zsbfm.make_env("fourrooms")
+    walls = np.asarray(jax.jit(lambda k: env.sample_contexts(k, 16))(jax.random.PRNGKey(3)).walls)
+    assert walls.shape == (16, 11, 11)
+    for w in walls:
+        rooms, doors = rooms_and_doors_fourrooms(w)
+        assert len(rooms) == 4 and len(doors) == 4
+        assert set(bfs(w, (1, 1))) == free_cells(w)
+
+
+def test_random_reset_starts_on_free_cells():
+    env = zsbfm.make_env("doors")
+    ctxs = env.contexts("train")
+    states = jax.vmap(lambda k: env.reset(k, index_contexts(ctxs, 0)))(jax.random.split(jax.random.PRNGKey(1), 500))
+    walls = np.asarray(ctxs.walls[0])
+    xy = np.asarray(states.obs).astype(int)
+    assert not walls[xy[:, 1], xy[:, 0]].any()
+    assert len({tuple(p) for p in xy}) == len(free_cells(walls))  # all free cells drawn
+
+
+def test_bad_env_arguments_raise():
+    with pytest.raises(ValueError, match="unknown env 'antwind'"):
+        zsbfm.make_env("antwind")
+    with pytest.raises(ValueError, match="n_train must be <= 29"):
+        zsbfm.make_env("doors", n_train=40)
+    with pytest.raises(ValueError, match="split must be"):
+        zsbfm.make_env("doors").contexts("val")
+
+
+def test_render_writes_png(tmp_path):
+    from zsbfm.envs.render import render_layouts
+
+    env = zsbfm.make_env("fourrooms")
+    w = np.asarray(env.contexts("test").walls[0])
+    path = render_layouts(str(tmp_path / "l.png"), [
+        dict(walls=w, values=np.random.rand(11, 11), actions=np.zeros((11, 11), int), start=(1, 1),
+             goals=[(8, 8)], title="x")])
+    with open(path, "rb") as f:
+        assert f.read(8) == b"\x89PNG\r\n\x1a\n"

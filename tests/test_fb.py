@@ -1,0 +1,124 @@
+"""FB against exact quantities: the closed-form successor measure on a tiny grid."""
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+import zsbfm
+from zsbfm.agents import FBAgent, Task, fb_loss, ortho_loss
+from zsbfm.data import collect
+from zsbfm.envs import GridContext
+from zsbfm.envs.gridworld import ACTION_DELTAS
+
+GAMMA = 0.8
+
+
+def tiny_grid():
+    """A 3x3 open room (cells x, y in 1..3) inside the 11x11 fourrooms frame."""
+    env = zsbfm.make_env("fourrooms", n_train=1, episode_len=50)
+    walls = np.ones((11, 11), bool)
+    walls[1:4, 1:4] = False
+    cells = [(x, y) for y in range(1, 4) for x in range(1, 4)]
+    return env, GridContext(walls=jnp.asarray(walls)[None]), cells
+
+
+def exact_successor_measure(cells, gamma):
+    """M[(s, a), s+] = sum_t gamma^t P(s_{t+1} = s+ | s, a) under the uniform policy:
+    M = P_sa (I - gamma P_pi)^-1 with P_pi = mean_a P_sa."""
+    idx = {c: i for i, c in enumerate(cells)}
+    S = len(cells)
+    P = np.zeros((S * 4, S))
+    for i, (x, y) in enumerate(cells):
+        for a, (dx, dy) in enumerate(ACTION_DELTAS):
+            nxt = (x + dx, y + dy)
+            P[i * 4 + a, idx.get(nxt, i)] = 1.0
+    P_pi = P.reshape(S, 4, S).mean(1)
+    return P @ np.linalg.inv(np.eye(S) - gamma * P_pi)
+
+
+def test_learned_measure_matches_closed_form():
+    env, ctxs, cells = tiny_grid()
+    ds = collect(env, jax.random.PRNGKey(0), ctxs, 400)
+    cfg = zsbfm.Config.preset("fourrooms", "fb", d=16, f_pre_hidden=(64,), f_pre_out=64,
+                              f_hidden=(128,), b_hidden=(64,), batch_size=256, gamma=GAMMA,
+                              lr=1e-3, target_policy="uniform")
+    agent = FBAgent(cfg, env)
+    state = agent.init(jax.random.PRNGKey(1))
+    train = jax.jit(lambda s, k: jax.lax.scan(lambda s, k: agent.update(s, ds, k), s,
+                                              jax.random.split(k, 3000)))
+    state, _ = train(state, jax.random.PRNGKey(2))
+
+    M = exact_successor_measure(cells, GAMMA)
+    S = len(cells)
+    # rho: the law of the next states the loss pairs F with (uniform over stored s').
+    nxt = np.asarray(ds.obs[:, 1:]).reshape(-1, 2).astype(int)
+    rho = np.array([np.mean((nxt[:, 0] == x) & (nxt[:, 1] == y)) for x, y in cells])
+    obs = jnp.asarray(cells, jnp.float32)
+    trivial = np.linalg.norm(M - M.mean(0, keepdims=True)) / np.linalg.norm(M)
+    for i in range(3):  # the uniform policy's measure must not depend on z
+        z = np.asarray(jax.random.normal(jax.random.PRNGKey(10 + i), (16,)))
+        z = jnp.asarray(4.0 * z / np.linalg.norm(z))
+        task = Task(z=jnp.broadcast_to(z, (S, 16)), h=jnp.zeros((S, 0)))
+        F = agent.forward(state.params.F, obs, task).mean(0)            # [S, A, d]
+        B = agent.backward(state.params.B, obs)                           # [S, d]
+        M_hat = np.asarray(jnp.einsum("sad,td->sat", F, B)).reshape(S * 4, S) * rho[None]
+        err = np.linalg.norm(M_hat - M) / np.linalg.norm(M)
+        assert err < 0.1, f"relative error {err:.3f} (predicting the row mean gives {trivial:.3f})"
+        # total mass of the discounted measure is 1 / (1 - gamma)
+        assert abs(M_hat.sum(1).mean() - 1 / (1 - GAMMA)) < 0.1 / (1 - GAMMA)
+
+
+def test_fb_loss_matches_elementwise_definition():
+    k1, k2, k3 = jax.random.split(jax.random.PRNGKey(0), 3)
+    F = jax.random.normal(k1, (2, 6, 4))
+    B = jax.random.normal(k2, (6, 4))
+    T = jax.random.normal(k3, (6, 6))
+    loss, _ = fb_loss(F, B, T, 0.9)
+    F, B, T = map(np.asarray, (F, B, T))
+    expect = 0.0
+    for k in range(2):
+        off = [(F[k, i] @ B[j] - 0.9 * T[i, j]) ** 2 for i in range(6) for j in range(6) if i != j]
+        expect += 0.5 * np.mean(off) - np.mean([F[k, i] @ B[i] for i in range(6)])
+    np.testing.assert_allclose(float(loss), expect, rtol=1e-5)
+
+
+def test_ortho_loss_is_minimal_for_orthogonal_rows():
+    d = 8
+    eye = jnp.eye(d) * jnp.sqrt(d)  # rows orthogonal, norm sqrt(d)
+    rand = jax.random.normal(jax.random.PRNGKey(0), (d, d))
+    rand = rand / jnp.linalg.norm(rand, axis=1, keepdims=True) * jnp.sqrt(d)
+    np.testing.assert_allclose(float(ortho_loss(eye)), -2.0 * d, rtol=1e-5)
+    assert float(ortho_loss(rand)) > float(ortho_loss(eye))
+
+
+def test_reward_inference_of_a_goal_indicator_is_B_of_the_goal():
+    env = zsbfm.make_env("fourrooms")
+    cfg = zsbfm.Config.preset("fourrooms", "fb", d=8, f_pre_hidden=(8,), f_pre_out=8, f_hidden=(8,),
+                              b_hidden=(8,))
+    agent = FBAgent(cfg, env)
+    params = agent.eval_params(agent.init(jax.random.PRNGKey(0)))
+    obs = jnp.array([[1.0, 1.0], [8.0, 8.0], [2.0, 8.0], [8.0, 8.0]])
+    reward = jnp.array([0.0, 1.0, 0.0, 1.0])
+    z_r = agent.reward_task(params, obs, reward, None).z
+    z_g = agent.goal_task(params, jnp.array([8.0, 8.0]), None).z
+    np.testing.assert_allclose(np.asarray(z_r), np.asarray(z_g), rtol=1e-5, atol=1e-5)
+    np.testing.assert_allclose(float(jnp.linalg.norm(z_g)), np.sqrt(8), rtol=1e-5)
+
+
+def test_z_sampling_mixes_with_independent_keys():
+    env = zsbfm.make_env("fourrooms", n_train=2)
+    ds = collect(env, jax.random.PRNGKey(0), env.contexts("train"), 10)
+    cfg = zsbfm.Config.preset("fourrooms", "fb", d=8, f_pre_hidden=(8,), f_pre_out=8, f_hidden=(8,),
+                              b_hidden=(8,), batch_size=2000, z_mix=0.5)
+    agent = FBAgent(cfg, env)
+    state = agent.init(jax.random.PRNGKey(0))
+    from zsbfm.data import sample_transitions
+
+    batch = sample_transitions(jax.random.PRNGKey(1), ds, 2000)
+    z = np.asarray(agent.train_z(state, ds, batch, jnp.zeros((2000, 0)), jax.random.PRNGKey(2)))
+    np.testing.assert_allclose(np.linalg.norm(z, axis=1), np.sqrt(8), rtol=1e-4)
+    # B(s) of the 121 grid cells is a finite set; Gaussian draws never hit it.
+    cells = jnp.stack(jnp.meshgrid(jnp.arange(11.0), jnp.arange(11.0)), -1).reshape(-1, 2)
+    Bset = np.asarray(agent.backward(state.params.B, cells))
+    from_B = np.min(np.linalg.norm(z[:, None] - Bset[None], axis=-1), axis=1) < 1e-4
+    assert 0.45 < from_B.mean() < 0.55
