@@ -14,7 +14,8 @@ import json
 from typing import Any
 
 ENVS = ("doors", "fourrooms")
-ALGOS = ("fb",)
+ALGOS = ("fb", "bfb", "rfb")
+ENCODER_MODES = ("staged", "joint")
 SIZES = ("cpu", "paper")
 TARGET_POLICIES = ("greedy", "boltzmann", "uniform")
 EPISODE_LEN = {"doors": 100, "fourrooms": 100}
@@ -52,6 +53,21 @@ class Config:
     target_policy: str = "greedy"             # "greedy" | "boltzmann" | "uniform"
     temperature: float = 1.0                  # Boltzmann target-policy temperature
 
+    # --- Belief-FB / Rotation-FB (ignored by fb) -------------------------------------------
+    h_dim: int = 0               # dimension of the context h; 0 -> d (rfb needs h_dim = d)
+    enc_embed: int = 64          # transformer width
+    enc_heads: int = 4
+    enc_layers: int = 2
+    enc_mlp: int = 128
+    pred_hidden: tuple[int, ...] = (128, 128)   # predictor g(s, a, h) -> s'
+    enc_lr: float = 3e-4
+    enc_beta: float = 1e-4       # weight of KL(q(h | episode) || N(0, I)) in the encoder loss
+    enc_steps: int = 2_000       # K: encoder pre-training steps before FB (staged mode)
+    enc_batch: int = 32          # episodes (context windows) per encoder batch
+    encoder_mode: str = "staged"  # "staged": f_dyn first, then FB on stop_grad(h); "joint"
+    windows_per_episode: int = 4  # h-table windows per episode when context_len < episode_len
+    kappa: float = 50.0          # vMF concentration of Rotation-FB's training z
+
     # --- schedule -------------------------------------------------------------------------
     steps: int = 10_000          # gradient steps per seed
     chunk_steps: int = 1_000     # steps per compiled chunk (progress/metrics/checkpoint)
@@ -70,15 +86,36 @@ class Config:
             bad("algo", self.algo, f"one of {ALGOS}")
         if self.size not in SIZES:
             bad("size", self.size, f"one of {SIZES}")
+        if self.encoder_mode not in ENCODER_MODES:
+            bad("encoder_mode", self.encoder_mode, f"one of {ENCODER_MODES}")
         if self.target_policy not in TARGET_POLICIES:
             bad("target_policy", self.target_policy, f"one of {TARGET_POLICIES}")
         for f in ("num_seeds", "n_train_layouts", "episodes_per_layout", "episode_len",
                   "context_len", "d", "f_pre_out", "batch_size", "steps", "chunk_steps",
-                  "eval_episode_len"):
+                  "eval_episode_len", "enc_embed", "enc_heads", "enc_layers", "enc_mlp",
+                  "enc_steps", "enc_batch", "windows_per_episode"):
             v = getattr(self, f)
             if not isinstance(v, int) or isinstance(v, bool) or v <= 0:
                 bad(f, v, "a positive integer")
-        for f in ("f_pre_hidden", "f_hidden", "b_hidden"):
+        if not isinstance(self.h_dim, int) or self.h_dim < 0:
+            bad("h_dim", self.h_dim, "a non-negative integer (0 means d)")
+        if self.enc_embed % self.enc_heads:
+            bad("enc_embed", self.enc_embed, f"a multiple of enc_heads={self.enc_heads}")
+        if self.enc_lr <= 0:
+            bad("enc_lr", self.enc_lr, "enc_lr > 0")
+        if self.enc_beta < 0:
+            bad("enc_beta", self.enc_beta, "enc_beta >= 0")
+        if not self.kappa > 0:
+            bad("kappa", self.kappa, "kappa > 0")
+        if self.algo == "rfb" and self.h_dim not in (0, self.d):
+            bad("h_dim", self.h_dim, f"0 or d={self.d} for rfb (z is drawn around h/|h| in R^d)")
+        if self.algo in ("bfb", "rfb") and self.encoder_mode == "staged":
+            if self.enc_steps >= self.steps:
+                bad("enc_steps", self.enc_steps, f"fewer than steps={self.steps} (FB trains after it)")
+            if self.enc_steps % self.chunk_steps:
+                bad("enc_steps", self.enc_steps,
+                    f"a multiple of chunk_steps={self.chunk_steps} (no chunk straddles two phases)")
+        for f in ("f_pre_hidden", "f_hidden", "b_hidden", "pred_hidden"):
             v = getattr(self, f)
             if not isinstance(v, tuple) or not v or any(not isinstance(h, int) or h <= 0 for h in v):
                 bad(f, v, "a non-empty tuple of positive integers")
@@ -111,6 +148,11 @@ class Config:
     @property
     def run_name(self) -> str:
         return self.name or f"{self.env}-{self.algo}-{self.size}"
+
+    @property
+    def context_dim(self) -> int:
+        """Dimension of h (0 for context-free algorithms)."""
+        return 0 if self.algo == "fb" else (self.h_dim or self.d)
 
     @property
     def num_chunks(self) -> int:

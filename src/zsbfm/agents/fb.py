@@ -89,6 +89,7 @@ def target_policy_weights(q: Array, policy: str, temperature: float) -> Array:
 class FBParams:
     F: Any
     B: Any
+    enc: Any = None  # context encoder + predictor (belief flavours); None for FB
 
 
 @struct.dataclass
@@ -172,7 +173,8 @@ class FBAgent:
         updates, opt_state = self.optimizer.update(grads, state.opt_state, state.params)
         params = optax.apply_updates(state.params, updates)
         target = optax.incremental_update(params, state.target, self.cfg.tau)
-        return FBState(params=params, target=target, opt_state=opt_state, step=state.step + 1), metrics
+        # replace, not a new FBState: the belief flavours' states carry extra fields.
+        return state.replace(params=params, target=target, opt_state=opt_state, step=state.step + 1), metrics
 
     def loss(self, params: FBParams, target: FBParams, batch: Transitions, task: Task):
         """FB TD loss + ortho_coef * orthonormality loss for one batch."""

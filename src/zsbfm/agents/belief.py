@@ -1,0 +1,249 @@
+"""Belief-FB and Rotation-FB: FB conditioned on an inferred dynamics context h.
+
+Belief-FB (paper section 3.2, Algorithm 1). A transformer f_dyn infers
+q(h | episode) = N(mu, sigma^2) from a set of transitions of one episode. It is trained
+self-supervised: a predictor g(s_t, a_t, h) regresses s_{t+1} with h ~ q
+(reparameterised), plus beta * KL(q || N(0, I)). F then sees w = [z; h] with
+h = stop_gradient(mu) of a window from the *same episode* as the transition; B never
+sees h. At test time, h = mu of one reward-free episode in the target layout.
+
+Rotation-FB (section 3.3, Algorithm 2): as Belief-FB, but training z are drawn from
+vMF(h / |h|, kappa) scaled to radius sqrt(d) (so dim h = d), mixed with probability
+z_mix with B(s) of a state from the same episode as h: a z that is plausible for that
+context, where FB mixes in B of states from any layout.
+
+Schedules (Config.encoder_mode):
+  "staged" (default, the paper's): steps [0, enc_steps) train f_dyn only; at step
+    enc_steps the encoder is frozen and mu of every episode's context window(s) is
+    computed once into `h_table` [episodes, windows, h_dim]; FB then reads h from the
+    table. With context_len = episode_len a window *is* the episode, so the table is exact;
+    with shorter contexts it holds `windows_per_episode` random windows per episode.
+  "joint": from step 0, every step samples enc_batch episodes, infers h for them with
+    gradients, and trains encoder + FB on the sum of both losses, the FB batch drawn
+    from those episodes.
+Both phases live inside one compiled update (lax.cond), so the training loop is the
+same as FB's.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from typing import Any
+
+import jax
+import jax.numpy as jnp
+import optax
+from flax import struct
+
+from zsbfm.agents.base import Context, Task
+from zsbfm.agents.fb import FBAgent, FBParams, mix_z
+from zsbfm.data.samplers import Transitions
+from zsbfm.nets.encoder import ContextEncoder, Predictor
+from zsbfm.ops.sphere import project_to_sphere
+from zsbfm.ops.vmf import sample_vmf
+
+Array = jax.Array
+
+
+@struct.dataclass
+class BeliefState:
+    params: FBParams          # F, B and enc = {"encoder": ..., "predictor": ...}
+    target: FBParams
+    opt_state: Any            # FB optimiser (over all of params; enc gets zero grads when staged)
+    step: Array
+    enc_opt_state: Any        # encoder pre-training optimiser
+    h_table: Array            # [episodes, windows, h_dim], filled at step enc_steps (staged)
+
+
+@dataclasses.dataclass(frozen=True)
+class BeliefFBAgent(FBAgent):
+    """Belief-FB. See the module docstring."""
+
+    @property
+    def h_dim(self) -> int:
+        return self.cfg.context_dim
+
+    @property
+    def encoder_net(self) -> ContextEncoder:
+        c = self.cfg
+        return ContextEncoder(self.h_dim, c.enc_embed, c.enc_heads, c.enc_layers, c.enc_mlp)
+
+    @property
+    def predictor_net(self) -> Predictor:
+        return Predictor(self.env.obs_dim, self.cfg.pred_hidden)
+
+    @property
+    def enc_optimizer(self) -> optax.GradientTransformation:
+        return optax.adam(self.cfg.enc_lr)
+
+    @property
+    def num_windows(self) -> int:
+        return 1 if self.cfg.context_len == self.cfg.episode_len else self.cfg.windows_per_episode
+
+    # -- tokens and inference -----------------------------------------------------------
+    def action_features(self, action: Array) -> Array:
+        """One-hot for discrete actions (never a float index), as-is for continuous ones."""
+        if self.env.discrete:
+            return jax.nn.one_hot(action, self.env.n_actions)
+        return action
+
+    def tokens(self, obs: Array, action: Array, next_obs: Array) -> Array:
+        """One token per transition: [s, a, s', s' - s] with s normalised: [..., N, tok]."""
+        s, s2 = self.normalize_obs(obs), self.normalize_obs(next_obs)
+        return jnp.concatenate([s, self.action_features(action), s2, s2 - s], -1)
+
+    def encode(self, enc_params, obs, action, next_obs, mask=None):
+        """q(h | transitions): (mu, log_sigma), each [..., h_dim]. obs [..., N, obs_dim]."""
+        tok = self.tokens(obs, action, next_obs)
+        mask = jnp.ones(tok.shape[:-1], bool) if mask is None else mask
+        return self.encoder_net.apply(enc_params["encoder"], tok, mask)
+
+    def context_h(self, params: FBParams, context: Context) -> Array:
+        """h = mu(f_dyn(one reward-free episode)): [h_dim]."""
+        mu, _ = self.encode(params.enc, context.obs[:-1], context.action, context.obs[1:])
+        return mu
+
+    # -- init ---------------------------------------------------------------------------------
+    def init(self, key: Array) -> BeliefState:
+        k_F, k_B, k_enc, k_pred = jax.random.split(key, 4)
+        c, od = self.cfg, self.env.obs_dim
+        obs = jnp.zeros((1, od))
+        w = jnp.zeros((1, c.d + self.h_dim))
+        a0 = jnp.zeros((1,), jnp.int32) if self.env.discrete else jnp.zeros((1, self.env.action_dim))
+        a_feat = self.action_features(a0)
+        tok = self.tokens(obs[:, None], a0[:, None], obs[:, None])           # [1, 1, token]
+        enc = {"encoder": self.encoder_net.init(k_enc, tok, jnp.ones((1, 1), bool)),
+               "predictor": self.predictor_net.init(k_pred, obs, a_feat, jnp.zeros((1, self.h_dim)))}
+        params = FBParams(F=self.F_net.init(k_F, obs, w), B=self.B_net.init(k_B, obs), enc=enc)
+        n_ep = c.n_train_layouts * c.episodes_per_layout
+        return BeliefState(params=params, target=params, opt_state=self.optimizer.init(params),
+                           step=jnp.zeros((), jnp.int32), enc_opt_state=self.enc_optimizer.init(enc),
+                           h_table=jnp.zeros((n_ep, self.num_windows, self.h_dim)))
+
+    # -- encoder pre-training ------------------------------------------------------------------
+    def encoder_loss(self, enc, obs, action, next_obs, key):
+        """Predictor MSE + beta KL for a batch of windows obs/next_obs [n, L, obs_dim].
+
+        L = mean_{i,t} |g(s_it, a_it, h_i) - s'_it|^2 + beta mean_i KL(N(mu_i, sigma_i^2) || N(0, I)),
+        h_i = mu_i + sigma_i * eps (reparameterised); also returns mu for reuse.
+        """
+        mu, log_sigma = self.encode(enc, obs, action, next_obs)
+        h = mu + jnp.exp(log_sigma) * jax.random.normal(key, mu.shape)
+        h_tok = jnp.broadcast_to(h[:, None], obs.shape[:2] + h.shape[-1:])
+        pred = self.predictor_net.apply(enc["predictor"], self.normalize_obs(obs),
+                                        self.action_features(action), h_tok)
+        mse = jnp.mean(jnp.sum((pred - self.normalize_obs(next_obs)) ** 2, -1))
+        kl = jnp.mean(0.5 * jnp.sum(mu**2 + jnp.exp(2 * log_sigma) - 1.0 - 2.0 * log_sigma, -1))
+        loss = mse + self.cfg.enc_beta * kl
+        return loss, ({"enc_mse": mse, "enc_kl": kl, "h_norm": jnp.mean(jnp.linalg.norm(mu, axis=-1))}, mu)
+
+    def sample_episode_windows(self, key, dataset, n):
+        """n random episodes and one context window of each: (episode [n], obs, action, next_obs)."""
+        from zsbfm.data.samplers import sample_windows
+
+        k_e, k_w = jax.random.split(key)
+        ep = jax.random.randint(k_e, (n,), 0, dataset.num_episodes)
+        return (ep,) + sample_windows(k_w, dataset, ep, self.cfg.context_len)
+
+    def pretrain_step(self, state: BeliefState, dataset, key) -> tuple[BeliefState, dict]:
+        """One encoder step on enc_batch windows; F and B untouched."""
+        k_win, k_eps = jax.random.split(key)
+        _, obs, action, next_obs = self.sample_episode_windows(k_win, dataset, self.cfg.enc_batch)
+        grads, (metrics, _) = jax.grad(self.encoder_loss, has_aux=True)(
+            state.params.enc, obs, action, next_obs, k_eps)
+        updates, enc_opt_state = self.enc_optimizer.update(grads, state.enc_opt_state, state.params.enc)
+        enc = optax.apply_updates(state.params.enc, updates)
+        params = state.params.replace(enc=enc)
+        return state.replace(params=params, target=state.target.replace(enc=enc),
+                             enc_opt_state=enc_opt_state, step=state.step + 1), metrics
+
+    def build_h_table(self, state: BeliefState, dataset, key) -> BeliefState:
+        """mu of `num_windows` context windows of every episode, with the frozen encoder."""
+        L, T, W = self.cfg.context_len, dataset.episode_len, self.num_windows
+        starts = jax.random.randint(key, (dataset.num_episodes, W), 0, T - L + 1)
+        if W == 1 and L == T:
+            starts = jnp.zeros_like(starts)
+
+        def one_episode(args):
+            obs, action, st = args
+            idx = st[:, None] + jnp.arange(L)[None]                       # [W, L]
+            mu, _ = self.encode(state.params.enc, obs[idx], action[idx], obs[idx + 1])
+            return mu                                                      # [W, h_dim]
+
+        table = jax.lax.map(one_episode, (dataset.obs, dataset.action, starts), batch_size=256)
+        return state.replace(h_table=jax.lax.stop_gradient(table))
+
+    # -- FB phase hooks ------------------------------------------------------------------------
+    def train_context(self, state: BeliefState, dataset, batch: Transitions, key: Array) -> Array:
+        """h of a context window from each transition's own episode (from the frozen table)."""
+        w = jax.random.randint(key, batch.episode.shape, 0, self.num_windows)
+        return state.h_table[batch.episode, w]
+
+    # -- the update ----------------------------------------------------------------------------
+    def update(self, state: BeliefState, dataset, key: Array) -> tuple[BeliefState, dict]:
+        if self.cfg.encoder_mode == "joint":
+            return self.joint_update(state, dataset, key)
+        k_pre, k_table, k_fb = jax.random.split(key, 3)
+        K = self.cfg.enc_steps
+
+        def fb_phase(s):
+            s = jax.lax.cond(s.step == K, lambda s: self.build_h_table(s, dataset, k_table),
+                             lambda s: s, s)
+            return FBAgent.update(self, s, dataset, k_fb)
+
+        pre_phase = lambda s: self.pretrain_step(s, dataset, k_pre)
+        # Each phase reports its own metrics; the other's read NaN ("not in this phase").
+        fb_shape = jax.eval_shape(fb_phase, state)[1]
+        pre_shape = jax.eval_shape(pre_phase, state)[1]
+        nan = lambda shapes: {k: jnp.full(v.shape, jnp.nan, v.dtype) for k, v in shapes.items()}
+
+        def pre(s):
+            s, m = pre_phase(s)
+            return s, {**nan(fb_shape), **m}
+
+        def fb(s):
+            s, m = fb_phase(s)
+            return s, {**m, **nan(pre_shape)}
+
+        return jax.lax.cond(state.step < K, pre, fb, state)
+
+    def joint_update(self, state: BeliefState, dataset, key: Array) -> tuple[BeliefState, dict]:
+        """End-to-end: encoder loss + FB loss, gradients of both reach the encoder.
+
+        The FB batch is drawn from the enc_batch episodes whose windows gave h.
+        """
+        c = self.cfg
+        k_win, k_eps, k_tr, k_z = jax.random.split(key, 4)
+        ep, w_obs, w_act, w_next = self.sample_episode_windows(k_win, dataset, c.enc_batch)
+        k_i, k_t = jax.random.split(k_tr)
+        which = jax.random.randint(k_i, (c.batch_size,), 0, c.enc_batch)
+        t = jax.random.randint(k_t, (c.batch_size,), 0, dataset.episode_len)
+        e = ep[which]
+        batch = Transitions(obs=dataset.obs[e, t], action=dataset.action[e, t],
+                            next_obs=dataset.obs[e, t + 1], episode=e, t=t)
+
+        def total_loss(params):
+            l_enc, (m_enc, mu) = self.encoder_loss(params.enc, w_obs, w_act, w_next, k_eps)
+            h = mu[which]
+            z = self.train_z(state.replace(params=params), dataset, batch, jax.lax.stop_gradient(h), k_z)
+            l_fb, m_fb = self.loss(params, state.target, batch, Task(z=jax.lax.stop_gradient(z), h=h))
+            return l_fb + l_enc, {**m_fb, **m_enc}
+
+        grads, metrics = jax.grad(total_loss, has_aux=True)(state.params)
+        updates, opt_state = self.optimizer.update(grads, state.opt_state, state.params)
+        params = optax.apply_updates(state.params, updates)
+        target = optax.incremental_update(params, state.target, c.tau)
+        return state.replace(params=params, target=target, opt_state=opt_state, step=state.step + 1), metrics
+
+
+@dataclasses.dataclass(frozen=True)
+class RotationFBAgent(BeliefFBAgent):
+    """Rotation-FB: training z ~ vMF(h / |h|, kappa) * sqrt(d), mixed with B(s) of the same episode."""
+
+    def train_z(self, state, dataset, batch: Transitions, h: Array, key: Array) -> Array:
+        k_vmf, k_t, k_mix = jax.random.split(key, 3)
+        n = batch.obs.shape[0]
+        z_vmf = jnp.sqrt(self.cfg.d) * sample_vmf(k_vmf, h, self.cfg.kappa)
+        t = jax.random.randint(k_t, (n,), 1, dataset.episode_len + 1)
+        z_states = self.backward(state.params.B, dataset.obs[batch.episode, t])
+        return jax.lax.stop_gradient(mix_z(k_mix, z_vmf, z_states, self.cfg.z_mix))

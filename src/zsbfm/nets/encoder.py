@@ -1,0 +1,71 @@
+"""The dynamics-context encoder f_dyn and its self-supervised predictor g.
+
+f_dyn reads a *set* of transitions of one episode, one token per transition, with no
+positional encoding, and mean-pools over the unmasked tokens: the output is invariant to
+the order of the transitions and unaffected by padding. It returns a diagonal Gaussian
+q(h | episode) = N(mu, diag(exp(log_sigma))^2). Everything runs in float32.
+
+g(s_t, a_t, h) regresses s_{t+1}: predicting the next state needs the layout, so h must
+carry it.
+"""
+
+from __future__ import annotations
+
+from typing import Sequence
+
+import flax.linen as nn
+import jax.numpy as jnp
+
+from zsbfm.nets.mlp import MLP
+
+
+class EncoderBlock(nn.Module):
+    """Pre-LayerNorm transformer block: masked self-attention then an MLP, residual."""
+
+    embed: int
+    heads: int
+    mlp: int
+
+    @nn.compact
+    def __call__(self, x, mask):
+        attn_mask = nn.make_attention_mask(mask, mask)
+        y = nn.LayerNorm(dtype=jnp.float32)(x)
+        y = nn.MultiHeadDotProductAttention(num_heads=self.heads, dtype=jnp.float32,
+                                            param_dtype=jnp.float32)(y, y, mask=attn_mask)
+        x = x + y
+        y = nn.LayerNorm(dtype=jnp.float32)(x)
+        y = nn.Dense(self.embed)(nn.relu(nn.Dense(self.mlp)(y)))
+        return x + y
+
+
+class ContextEncoder(nn.Module):
+    """f_dyn(tokens [..., N, in], mask bool[..., N]) -> (mu, log_sigma), each [..., h_dim]."""
+
+    h_dim: int
+    embed: int = 64
+    heads: int = 4
+    layers: int = 2
+    mlp: int = 128
+
+    @nn.compact
+    def __call__(self, tokens, mask):
+        x = nn.Dense(self.embed)(tokens.astype(jnp.float32))
+        for _ in range(self.layers):
+            x = EncoderBlock(self.embed, self.heads, self.mlp)(x, mask)
+        x = nn.LayerNorm()(x)
+        w = mask.astype(jnp.float32)[..., None]
+        pooled = jnp.sum(x * w, axis=-2) / jnp.maximum(jnp.sum(w, axis=-2), 1.0)
+        mu = nn.Dense(self.h_dim, name="mu")(pooled)
+        log_sigma = jnp.clip(nn.Dense(self.h_dim, name="log_sigma")(pooled), -6.0, 2.0)
+        return mu, log_sigma
+
+
+class Predictor(nn.Module):
+    """g(s, a, h) -> predicted next observation (in the normalised observation space)."""
+
+    obs_dim: int
+    hidden: Sequence[int]
+
+    @nn.compact
+    def __call__(self, obs, action_feat, h):
+        return MLP(self.hidden, self.obs_dim)(jnp.concatenate([obs, action_feat, h], -1))
