@@ -64,6 +64,7 @@ class Config:
     enc_beta: float = 1e-4       # weight of KL(q(h | episode) || N(0, I)) in the encoder loss
     enc_steps: int = 2_000       # K: encoder pre-training steps before FB (staged mode)
     enc_batch: int = 32          # episodes (context windows) per encoder batch
+    enc_target: str = "episode"  # predict the window's own transitions, or another episode's of its layout ("context")
     encoder_mode: str = "staged"  # "staged": f_dyn first, then FB on stop_grad(h); "joint"
     windows_per_episode: int = 4  # h-table windows per episode when context_len < episode_len
     kappa: float = 50.0          # vMF concentration of Rotation-FB's training z
@@ -86,6 +87,8 @@ class Config:
             bad("algo", self.algo, f"one of {ALGOS}")
         if self.size not in SIZES:
             bad("size", self.size, f"one of {SIZES}")
+        if self.enc_target not in ("episode", "context"):
+            bad("enc_target", self.enc_target, "'episode' or 'context'")
         if self.encoder_mode not in ENCODER_MODES:
             bad("encoder_mode", self.encoder_mode, f"one of {ENCODER_MODES}")
         if self.target_policy not in TARGET_POLICIES:

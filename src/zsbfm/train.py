@@ -49,7 +49,7 @@ class Trainer:
     agent: Any
     init: Callable           # key -> TrainCarry
     collect_data: Callable   # TrainCarry -> Dataset
-    run_chunk: Callable      # (TrainCarry, Dataset) -> (TrainCarry, metrics averaged over the chunk)
+    run_chunk: Callable      # (TrainCarry, Dataset, chunk index) -> (TrainCarry, chunk-mean metrics)
     evaluate: Callable       # TrainCarry -> {"train": bool[n_ctx, n_goals], "test": ...}
     train: Callable          # key -> (TrainCarry, metrics [num_chunks, ...], evaluation)
 
@@ -72,14 +72,20 @@ def make_train(cfg: Config) -> Trainer:
     def collect_data(carry):
         return collect(env, carry.data_key, train_ctx, cfg.episodes_per_layout)
 
-    def run_chunk(carry, dataset):
+    def run_chunk(carry, dataset, chunk):
+        """cfg.chunk_steps updates. `chunk` is the chunk index, shared by all seeds: under
+        vmap it stays unbatched, so agents can branch on the global step with a real
+        lax.cond (a batched predicate would turn the cond into a select of both branches)."""
         TRACE_COUNTS["run_chunk"] += 1
         key, chunk_key = jax.random.split(carry.key)
+        steps = chunk * cfg.chunk_steps + jnp.arange(cfg.chunk_steps)
 
-        def step(state, k):
-            return agent.update(state, dataset, k)
+        def step(state, xs):
+            k, global_step = xs
+            return agent.update(state, dataset, k, global_step)
 
-        state, metrics = jax.lax.scan(step, carry.agent_state, jax.random.split(chunk_key, cfg.chunk_steps))
+        state, metrics = jax.lax.scan(step, carry.agent_state,
+                                      (jax.random.split(chunk_key, cfg.chunk_steps), steps))
         metrics = jax.tree_util.tree_map(jnp.mean, metrics)
         return carry.replace(agent_state=state, key=key, chunk=carry.chunk + 1), metrics
 
@@ -93,7 +99,8 @@ def make_train(cfg: Config) -> Trainer:
     def train(key):
         carry = init(key)
         dataset = collect_data(carry)
-        carry, metrics = jax.lax.scan(lambda c, _: run_chunk(c, dataset), carry, None, cfg.num_chunks)
+        carry, metrics = jax.lax.scan(lambda c, i: run_chunk(c, dataset, i), carry,
+                                      jnp.arange(cfg.num_chunks, dtype=jnp.int32))
         return carry, metrics, evaluate(carry)
 
     return Trainer(cfg, env, agent, init, collect_data, run_chunk, evaluate, train)
@@ -155,14 +162,14 @@ def train(cfg: Config, resume: bool = True, progress: bool = True,
     metrics = _read_metrics(run_dir, start)
 
     dataset = jax.jit(jax.vmap(trainer.collect_data))(carry)
-    chunk_fn = jax.jit(jax.vmap(trainer.run_chunk, in_axes=(0, 0)), donate_argnums=0)
+    chunk_fn = jax.jit(jax.vmap(trainer.run_chunk, in_axes=(0, 0, None)), donate_argnums=0)
     bar = _progress(cfg, start, progress)
     with open(os.path.join(run_dir, "metrics.jsonl"), "w") as f:
         for row in metrics:
             f.write(json.dumps(row) + "\n")
         for chunk in range(start, cfg.num_chunks):
             t_chunk = time.time()
-            carry, m = chunk_fn(carry, dataset)
+            carry, m = chunk_fn(carry, dataset, jnp.int32(chunk))
             m = jax.device_get(m)  # the one host transfer per chunk
             row = {"chunk": chunk + 1, "step": (chunk + 1) * cfg.chunk_steps,
                    "seconds": round(time.time() - t_chunk, 3),

@@ -5,13 +5,14 @@ mutable state is the `state` pytree it returns, so the training loop can scan, v
 seeds and checkpoint it without knowing the algorithm:
 
     state            = agent.init(key)
-    state, metrics   = agent.update(state, dataset, key)   # samples its own batch
+    state, metrics   = agent.update(state, dataset, key, step)   # samples its own batch
     task             = agent.goal_task(params, goal_obs, context)
     task             = agent.reward_task(params, obs, reward, context)
     action           = agent.act(params, obs, task, key)
 
 `context` is one reward-free episode (obs [T+1, obs_dim], action [T, ...]) of the
-behaviour policy in the layout the task lives in; context-free agents ignore it, belief
+behaviour policy in the layout the task lives in; `step` is the global update index,
+the same for every seed (unbatched under vmap), for agents with training phases; context-free agents ignore it, belief
 agents infer h from it. `params = agent.eval_params(state)` is what acting needs.
 """
 
@@ -44,7 +45,7 @@ class Context:
 
 class Agent(Protocol):
     def init(self, key: jax.Array) -> Any: ...
-    def update(self, state: Any, dataset: Any, key: jax.Array) -> tuple[Any, dict]: ...
+    def update(self, state: Any, dataset: Any, key: jax.Array, step: jax.Array) -> tuple[Any, dict]: ...
     def eval_params(self, state: Any) -> Any: ...
     def goal_task(self, params: Any, goal_obs: jax.Array, context: Context) -> Task: ...
     def reward_task(self, params: Any, obs: jax.Array, reward: jax.Array, context: Context) -> Task: ...

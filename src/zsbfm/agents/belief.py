@@ -121,14 +121,16 @@ class BeliefFBAgent(FBAgent):
                            h_table=jnp.zeros((n_ep, self.num_windows, self.h_dim)))
 
     # -- encoder pre-training ------------------------------------------------------------------
-    def encoder_loss(self, enc, obs, action, next_obs, key):
-        """Predictor MSE + beta KL for a batch of windows obs/next_obs [n, L, obs_dim].
+    def encoder_loss(self, enc, window, target, key):
+        """Predictor MSE + beta KL. window, target: (obs, action, next_obs) batches [n, L, ...].
 
         L = mean_{i,t} |g(s_it, a_it, h_i) - s'_it|^2 + beta mean_i KL(N(mu_i, sigma_i^2) || N(0, I)),
-        h_i = mu_i + sigma_i * eps (reparameterised); also returns mu for reuse.
+        with h_i = mu_i + sigma_i * eps (reparameterised) inferred from window i and the
+        regression targets (s, a, s') taken from target i. Also returns mu for reuse.
         """
-        mu, log_sigma = self.encode(enc, obs, action, next_obs)
+        mu, log_sigma = self.encode(enc, *window)
         h = mu + jnp.exp(log_sigma) * jax.random.normal(key, mu.shape)
+        obs, action, next_obs = target
         h_tok = jnp.broadcast_to(h[:, None], obs.shape[:2] + h.shape[-1:])
         pred = self.predictor_net.apply(enc["predictor"], self.normalize_obs(obs),
                                         self.action_features(action), h_tok)
@@ -146,11 +148,25 @@ class BeliefFBAgent(FBAgent):
         return (ep,) + sample_windows(k_w, dataset, ep, self.cfg.context_len)
 
     def pretrain_step(self, state: BeliefState, dataset, key) -> tuple[BeliefState, dict]:
-        """One encoder step on enc_batch windows; F and B untouched."""
-        k_win, k_eps = jax.random.split(key)
-        _, obs, action, next_obs = self.sample_episode_windows(k_win, dataset, self.cfg.enc_batch)
+        """One encoder step on enc_batch windows; F and B untouched.
+
+        enc_target="episode": g predicts the transitions of the window h was inferred from
+        (Algorithm 1). enc_target="context": g predicts a window of *another* episode of the
+        same layout (dataset.context_id), so h must carry what episodes of a layout share
+        (its walls) rather than what one episode happened to visit.
+        """
+        from zsbfm.data.samplers import sample_windows
+
+        k_win, k_other, k_tw, k_eps = jax.random.split(key, 4)
+        ep, *window = self.sample_episode_windows(k_win, dataset, self.cfg.enc_batch)
+        if self.cfg.enc_target == "context":
+            per = self.cfg.episodes_per_layout  # episodes are context-major
+            other = dataset.context_id[ep] * per + jax.random.randint(k_other, ep.shape, 0, per)
+            target = sample_windows(k_tw, dataset, other, self.cfg.context_len)
+        else:
+            target = window
         grads, (metrics, _) = jax.grad(self.encoder_loss, has_aux=True)(
-            state.params.enc, obs, action, next_obs, k_eps)
+            state.params.enc, tuple(window), tuple(target), k_eps)
         updates, enc_opt_state = self.enc_optimizer.update(grads, state.enc_opt_state, state.params.enc)
         enc = optax.apply_updates(state.params.enc, updates)
         params = state.params.replace(enc=enc)
@@ -180,14 +196,19 @@ class BeliefFBAgent(FBAgent):
         return state.h_table[batch.episode, w]
 
     # -- the update ----------------------------------------------------------------------------
-    def update(self, state: BeliefState, dataset, key: Array) -> tuple[BeliefState, dict]:
+    def update(self, state: BeliefState, dataset, key: Array, step: Array) -> tuple[BeliefState, dict]:
+        """Staged: encoder step while step < enc_steps, else FB step (table built at enc_steps).
+
+        `step` must be the unbatched global step (see train.run_chunk) so that lax.cond
+        runs one branch instead of selecting between both.
+        """
         if self.cfg.encoder_mode == "joint":
             return self.joint_update(state, dataset, key)
         k_pre, k_table, k_fb = jax.random.split(key, 3)
         K = self.cfg.enc_steps
 
         def fb_phase(s):
-            s = jax.lax.cond(s.step == K, lambda s: self.build_h_table(s, dataset, k_table),
+            s = jax.lax.cond(step == K, lambda s: self.build_h_table(s, dataset, k_table),
                              lambda s: s, s)
             return FBAgent.update(self, s, dataset, k_fb)
 
@@ -205,7 +226,7 @@ class BeliefFBAgent(FBAgent):
             s, m = fb_phase(s)
             return s, {**m, **nan(pre_shape)}
 
-        return jax.lax.cond(state.step < K, pre, fb, state)
+        return jax.lax.cond(step < K, pre, fb, state)
 
     def joint_update(self, state: BeliefState, dataset, key: Array) -> tuple[BeliefState, dict]:
         """End-to-end: encoder loss + FB loss, gradients of both reach the encoder.
@@ -223,7 +244,8 @@ class BeliefFBAgent(FBAgent):
                             next_obs=dataset.obs[e, t + 1], episode=e, t=t)
 
         def total_loss(params):
-            l_enc, (m_enc, mu) = self.encoder_loss(params.enc, w_obs, w_act, w_next, k_eps)
+            window = (w_obs, w_act, w_next)
+            l_enc, (m_enc, mu) = self.encoder_loss(params.enc, window, window, k_eps)
             h = mu[which]
             z = self.train_z(state.replace(params=params), dataset, batch, jax.lax.stop_gradient(h), k_z)
             l_fb, m_fb = self.loss(params, state.target, batch, Task(z=jax.lax.stop_gradient(z), h=h))

@@ -162,8 +162,11 @@ class FBAgent:
     def eval_params(self, state: FBState) -> FBParams:
         return state.params
 
-    def update(self, state: FBState, dataset, key: Array) -> tuple[FBState, dict]:
-        """One gradient step on a fresh batch sampled from `dataset`."""
+    def update(self, state: FBState, dataset, key: Array, step: Array | None = None) -> tuple[FBState, dict]:
+        """One gradient step on a fresh batch sampled from `dataset`.
+
+        step: the global update index (unbatched across seeds); FB does not need it.
+        """
         k_batch, k_h, k_z = jax.random.split(key, 3)
         batch = sample_transitions(k_batch, dataset, self.cfg.batch_size)
         h = self.train_context(state, dataset, batch, k_h)

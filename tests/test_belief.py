@@ -1,0 +1,105 @@
+"""Belief/Rotation-FB pieces against exact facts: vMF moments, Householder, invariances."""
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+from scipy.special import ive
+
+import zsbfm
+from zsbfm.agents import make_agent
+from zsbfm.nets.encoder import ContextEncoder
+from zsbfm.ops.vmf import householder_to, sample_vmf, sample_vmf_cosine
+
+
+def mean_cosine(d, kappa):
+    """A_d(kappa) = I_{d/2}(kappa) / I_{d/2-1}(kappa) (scaled Bessel functions: same ratio)."""
+    return ive(d / 2, kappa) / ive(d / 2 - 1, kappa)
+
+
+@pytest.mark.parametrize("d,kappa", [(3, 1.0), (3, 10.0), (10, 5.0), (20, 50.0), (100, 50.0), (100, 200.0)])
+def test_vmf_cosine_moments_match_closed_form(d, kappa):
+    n = 40_000
+    w = np.asarray(sample_vmf_cosine(jax.random.PRNGKey(d + int(kappa)), n, d, kappa), np.float64)
+    A = mean_cosine(d, kappa)
+    second = 1.0 - (d - 1) * A / kappa          # E[w^2]
+    sd = np.sqrt(max(second - A**2, 1e-12))
+    assert abs(w.mean() - A) < 5 * sd / np.sqrt(n), (w.mean(), A)
+    # The spread (what skipping Wood's rejection step gets wrong): E[w^2] within 5%.
+    assert abs(np.var(w) - (second - A**2)) < 0.05 * (second - A**2), (np.var(w), second - A**2)
+    assert w.min() >= -1.0 and w.max() <= 1.0
+
+
+def test_vmf_samples_are_unit_and_centred_on_mu():
+    d, kappa, n = 50, 50.0, 20_000
+    mu = jax.random.normal(jax.random.PRNGKey(0), (d,))
+    mus = jnp.broadcast_to(mu * 3.0, (n, d))  # any scale: the direction is h / |h|
+    x = np.asarray(sample_vmf(jax.random.PRNGKey(1), mus, kappa))
+    np.testing.assert_allclose(np.linalg.norm(x, axis=1), 1.0, atol=1e-5)
+    u = np.asarray(mu / jnp.linalg.norm(mu))
+    assert abs((x @ u).mean() - mean_cosine(d, kappa)) < 0.01
+    # the mean direction of the samples is mu
+    m = x.mean(0)
+    assert m @ u / np.linalg.norm(m) > 0.999
+
+
+def test_householder_maps_e1_to_mu_and_is_orthogonal():
+    d = 7
+    mu = jax.random.normal(jax.random.PRNGKey(2), (d,))
+    mu = mu / jnp.linalg.norm(mu)
+    H = np.asarray(jax.vmap(lambda e: householder_to(mu, e))(jnp.eye(d))).T  # columns H e_i
+    np.testing.assert_allclose(H[:, 0], np.asarray(mu), atol=1e-6)
+    np.testing.assert_allclose(H @ H.T, np.eye(d), atol=1e-5)
+    e1 = jnp.eye(d)[0]
+    np.testing.assert_allclose(np.asarray(householder_to(e1, mu)), np.asarray(mu), atol=1e-7)
+
+
+def test_vmf_sampler_is_jittable_and_keys_matter():
+    f = jax.jit(lambda k: sample_vmf(k, jnp.ones((8, 5)), 10.0))
+    a, b = f(jax.random.PRNGKey(0)), f(jax.random.PRNGKey(1))
+    assert not np.allclose(np.asarray(a), np.asarray(b))
+    np.testing.assert_array_equal(np.asarray(a), np.asarray(f(jax.random.PRNGKey(0))))
+
+
+@pytest.fixture(scope="module")
+def encoder():
+    net = ContextEncoder(h_dim=6, embed=16, heads=2, layers=2, mlp=32)
+    tokens = jax.random.normal(jax.random.PRNGKey(0), (3, 12, 9))
+    params = net.init(jax.random.PRNGKey(1), tokens, jnp.ones((3, 12), bool))
+    return net, params, tokens
+
+
+def test_encoder_is_permutation_invariant(encoder):
+    net, params, tokens = encoder
+    mask = jnp.ones(tokens.shape[:2], bool)
+    mu, ls = net.apply(params, tokens, mask)
+    perm = jax.random.permutation(jax.random.PRNGKey(3), 12)
+    mu_p, ls_p = net.apply(params, tokens[:, perm], mask)
+    np.testing.assert_allclose(np.asarray(mu), np.asarray(mu_p), atol=1e-5)
+    np.testing.assert_allclose(np.asarray(ls), np.asarray(ls_p), atol=1e-5)
+    assert mu.dtype == jnp.float32
+
+
+def test_encoder_ignores_padding(encoder):
+    net, params, tokens = encoder
+    mu, _ = net.apply(params, tokens, jnp.ones(tokens.shape[:2], bool))
+    junk = 100.0 * jax.random.normal(jax.random.PRNGKey(4), (3, 5, 9))
+    padded = jnp.concatenate([tokens, junk], 1)
+    mask = jnp.concatenate([jnp.ones((3, 12), bool), jnp.zeros((3, 5), bool)], 1)
+    mu_pad, _ = net.apply(params, padded, mask)
+    np.testing.assert_allclose(np.asarray(mu), np.asarray(mu_pad), atol=1e-5)
+    # and the padding must not be trivially ignored because the output is constant
+    mu_other, _ = net.apply(params, tokens[:, :6], jnp.ones((3, 6), bool))
+    assert not np.allclose(np.asarray(mu), np.asarray(mu_other), atol=1e-3)
+
+
+def test_discrete_actions_enter_the_encoder_one_hot():
+    cfg = zsbfm.Config.preset("fourrooms", "bfb")
+    agent = make_agent(cfg, zsbfm.make_env("fourrooms"))
+    tok = agent.tokens(jnp.zeros((5, 2)), jnp.array([0, 1, 2, 3, 1]), jnp.zeros((5, 2)))
+    np.testing.assert_array_equal(np.asarray(tok[:, 2:6]), np.eye(4)[[0, 1, 2, 3, 1]])
+
+
+def test_rfb_requires_h_dim_equal_d():
+    with pytest.raises(ValueError, match="Config.h_dim=8"):
+        zsbfm.Config.preset("fourrooms", "rfb", d=16, h_dim=8)
