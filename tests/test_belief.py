@@ -103,3 +103,32 @@ def test_discrete_actions_enter_the_encoder_one_hot():
 def test_rfb_requires_h_dim_equal_d():
     with pytest.raises(ValueError, match="Config.h_dim=8"):
         zsbfm.Config.preset("fourrooms", "rfb", d=16, h_dim=8)
+
+
+def test_short_encoder_pretraining_separates_fourrooms_layouts():
+    """After a short pre-training, fresh episodes of the same layout sit closer in h than
+    episodes of different layouts, and nearest neighbours find the layout above chance."""
+    from zsbfm.data import collect
+
+    n_layouts = 4
+    cfg = zsbfm.Config.preset("fourrooms", "bfb", n_train_layouts=n_layouts, episodes_per_layout=200,
+                              enc_target="context", enc_steps=600, steps=1000, chunk_steps=200,
+                              enc_embed=32, enc_mlp=64, pred_hidden=(64, 64), d=16)
+    env = zsbfm.make_env("fourrooms", n_train=n_layouts)
+    agent = make_agent(cfg, env)
+    ds = collect(env, jax.random.PRNGKey(0), env.contexts("train"), cfg.episodes_per_layout)
+    state = agent.init(jax.random.PRNGKey(1))
+    pre = jax.jit(lambda s, k: jax.lax.scan(lambda s, k: agent.pretrain_step(s, ds, k), s,
+                                            jax.random.split(k, cfg.enc_steps)))
+    state, metrics = pre(state, jax.random.PRNGKey(2))
+    assert metrics["enc_mse"][-50:].mean() < metrics["enc_mse"][:50].mean()
+
+    held_out = collect(env, jax.random.PRNGKey(3), env.contexts("train"), 25)
+    mu, _ = agent.encode(state.params.enc, held_out.obs[:, :-1], held_out.action, held_out.obs[:, 1:])
+    h, ids = np.asarray(mu), np.asarray(held_out.context_id)
+    D = np.linalg.norm(h[:, None] - h[None], axis=-1)
+    same, off = ids[:, None] == ids[None], ~np.eye(len(ids), dtype=bool)
+    d_same, d_diff = D[same & off].mean(), D[~same].mean()
+    assert d_diff > 1.05 * d_same, (d_same, d_diff)
+    nn = ids[(D + 1e9 * np.eye(len(ids))).argmin(1)]
+    assert np.mean(nn == ids) > 1.5 / n_layouts, np.mean(nn == ids)

@@ -39,17 +39,19 @@ class Config:
     context_len: int = 100      # transitions per context window (belief methods)
 
     # --- FB -----------------------------------------------------------------------------
+    obs_encoding: str = "onehot"              # network input: "onehot" (grid coords) | "raw"
     d: int = 50                               # latent dimension of z, F, B
     f_pre_hidden: tuple[int, ...] = (128,)    # preprocessor hidden layers
     f_pre_out: int = 128                      # preprocessor output width
     f_hidden: tuple[int, ...] = (256,)        # F trunk hidden layers
     b_hidden: tuple[int, ...] = (128, 128)    # B hidden layers
-    lr: float = 3e-4
+    lr: float = 1e-3
     batch_size: int = 256
-    gamma: float = 0.98
-    tau: float = 0.01                         # Polyak rate of the target networks
+    gamma: float = 0.95                       # paper: 0.99 (see README: CPU budget)
+    tau: float = 0.05                         # Polyak rate of the target networks (paper: 0.05)
     z_mix: float = 0.5                        # probability that a training z is B(s)
     ortho_coef: float = 1.0
+    twin_target: str = "mean"                 # combine the twin target measures: "mean" | "min"
     target_policy: str = "greedy"             # "greedy" | "boltzmann" | "uniform"
     temperature: float = 1.0                  # Boltzmann target-policy temperature
 
@@ -60,10 +62,10 @@ class Config:
     enc_layers: int = 2
     enc_mlp: int = 128
     pred_hidden: tuple[int, ...] = (128, 128)   # predictor g(s, a, h) -> s'
-    enc_lr: float = 3e-4
-    enc_beta: float = 1e-4       # weight of KL(q(h | episode) || N(0, I)) in the encoder loss
+    enc_lr: float = 1e-3
+    enc_beta: float = 1e-6       # weight of KL(q(h | episode) || N(0, I)) in the encoder loss
     enc_steps: int = 2_000       # K: encoder pre-training steps before FB (staged mode)
-    enc_batch: int = 32          # episodes (context windows) per encoder batch
+    enc_batch: int = 16          # episodes (context windows) per encoder batch
     enc_target: str = "episode"  # predict the window's own transitions, or another episode's of its layout ("context")
     encoder_mode: str = "staged"  # "staged": f_dyn first, then FB on stop_grad(h); "joint"
     windows_per_episode: int = 4  # h-table windows per episode when context_len < episode_len
@@ -87,6 +89,10 @@ class Config:
             bad("algo", self.algo, f"one of {ALGOS}")
         if self.size not in SIZES:
             bad("size", self.size, f"one of {SIZES}")
+        if self.twin_target not in ("mean", "min"):
+            bad("twin_target", self.twin_target, "'mean' or 'min'")
+        if self.obs_encoding not in ("raw", "onehot"):
+            bad("obs_encoding", self.obs_encoding, "'raw' or 'onehot'")
         if self.enc_target not in ("episode", "context"):
             bad("enc_target", self.enc_target, "'episode' or 'context'")
         if self.encoder_mode not in ENCODER_MODES:

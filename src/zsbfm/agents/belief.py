@@ -88,9 +88,11 @@ class BeliefFBAgent(FBAgent):
         return action
 
     def tokens(self, obs: Array, action: Array, next_obs: Array) -> Array:
-        """One token per transition: [s, a, s', s' - s] with s normalised: [..., N, tok]."""
-        s, s2 = self.normalize_obs(obs), self.normalize_obs(next_obs)
-        return jnp.concatenate([s, self.action_features(action), s2, s2 - s], -1)
+        """One token per transition: [phi(s), a, phi(s'), s' - s] (phi = obs_features,
+        s' - s in normalised coordinates): [..., N, token]."""
+        move = self.normalize_obs(next_obs) - self.normalize_obs(obs)
+        return jnp.concatenate([self.obs_features(obs), self.action_features(action),
+                                self.obs_features(next_obs), move], -1)
 
     def encode(self, enc_params, obs, action, next_obs, mask=None):
         """q(h | transitions): (mu, log_sigma), each [..., h_dim]. obs [..., N, obs_dim]."""
@@ -98,23 +100,35 @@ class BeliefFBAgent(FBAgent):
         mask = jnp.ones(tok.shape[:-1], bool) if mask is None else mask
         return self.encoder_net.apply(enc_params["encoder"], tok, mask)
 
+    def standardize(self, enc, mu: Array) -> Array:
+        """h = (mu - mean) / std with the dataset statistics of mu frozen at the h-table build.
+
+        The encoder's mu share a large common offset, so raw h / |h| barely differ
+        between layouts; standardised h differ in direction (what Rotation-FB's vMF needs)
+        and in scale comparable to z inside F's input.
+        """
+        return (mu - enc["h_mean"]) / enc["h_std"]
+
     def context_h(self, params: FBParams, context: Context) -> Array:
-        """h = mu(f_dyn(one reward-free episode)): [h_dim]."""
+        """h = standardised mu(f_dyn(one reward-free episode)): [h_dim]."""
         mu, _ = self.encode(params.enc, context.obs[:-1], context.action, context.obs[1:])
-        return mu
+        return self.standardize(params.enc, mu)
 
     # -- init ---------------------------------------------------------------------------------
     def init(self, key: Array) -> BeliefState:
         k_F, k_B, k_enc, k_pred = jax.random.split(key, 4)
-        c, od = self.cfg, self.env.obs_dim
-        obs = jnp.zeros((1, od))
+        c = self.cfg
+        obs = jnp.asarray([self.env.obs_low], jnp.float32)
+        feat = self.obs_features(obs)
         w = jnp.zeros((1, c.d + self.h_dim))
         a0 = jnp.zeros((1,), jnp.int32) if self.env.discrete else jnp.zeros((1, self.env.action_dim))
-        a_feat = self.action_features(a0)
         tok = self.tokens(obs[:, None], a0[:, None], obs[:, None])           # [1, 1, token]
         enc = {"encoder": self.encoder_net.init(k_enc, tok, jnp.ones((1, 1), bool)),
-               "predictor": self.predictor_net.init(k_pred, obs, a_feat, jnp.zeros((1, self.h_dim)))}
-        params = FBParams(F=self.F_net.init(k_F, obs, w), B=self.B_net.init(k_B, obs), enc=enc)
+               "predictor": self.predictor_net.init(k_pred, feat, self.action_features(a0),
+                                                    jnp.zeros((1, self.h_dim))),
+               # statistics of mu, set when the h table is built (identity until then)
+               "h_mean": jnp.zeros((self.h_dim,)), "h_std": jnp.ones((self.h_dim,))}
+        params = FBParams(F=self.F_net.init(k_F, feat, w), B=self.B_net.init(k_B, feat), enc=enc)
         n_ep = c.n_train_layouts * c.episodes_per_layout
         return BeliefState(params=params, target=params, opt_state=self.optimizer.init(params),
                            step=jnp.zeros((), jnp.int32), enc_opt_state=self.enc_optimizer.init(enc),
@@ -132,8 +146,9 @@ class BeliefFBAgent(FBAgent):
         h = mu + jnp.exp(log_sigma) * jax.random.normal(key, mu.shape)
         obs, action, next_obs = target
         h_tok = jnp.broadcast_to(h[:, None], obs.shape[:2] + h.shape[-1:])
-        pred = self.predictor_net.apply(enc["predictor"], self.normalize_obs(obs),
-                                        self.action_features(action), h_tok)
+        # g predicts s' as s + displacement (normalised units): the same regression of s'.
+        pred = self.normalize_obs(obs) + self.predictor_net.apply(
+            enc["predictor"], self.obs_features(obs), self.action_features(action), h_tok)
         mse = jnp.mean(jnp.sum((pred - self.normalize_obs(next_obs)) ** 2, -1))
         kl = jnp.mean(0.5 * jnp.sum(mu**2 + jnp.exp(2 * log_sigma) - 1.0 - 2.0 * log_sigma, -1))
         loss = mse + self.cfg.enc_beta * kl
@@ -186,8 +201,11 @@ class BeliefFBAgent(FBAgent):
             mu, _ = self.encode(state.params.enc, obs[idx], action[idx], obs[idx + 1])
             return mu                                                      # [W, h_dim]
 
-        table = jax.lax.map(one_episode, (dataset.obs, dataset.action, starts), batch_size=256)
-        return state.replace(h_table=jax.lax.stop_gradient(table))
+        table = jax.lax.stop_gradient(
+            jax.lax.map(one_episode, (dataset.obs, dataset.action, starts), batch_size=256))
+        enc = dict(state.params.enc, h_mean=table.mean((0, 1)), h_std=table.std((0, 1)) + 1e-6)
+        return state.replace(params=state.params.replace(enc=enc), target=state.target.replace(enc=enc),
+                             h_table=self.standardize(enc, table))
 
     # -- FB phase hooks ------------------------------------------------------------------------
     def train_context(self, state: BeliefState, dataset, batch: Transitions, key: Array) -> Array:

@@ -40,7 +40,8 @@ def fb_loss(F: Array, B: Array, target_M: Array, gamma: float) -> tuple[Array, d
 
     F:        [K, n, d]  F_k(s_i, a_i, w_i) for the batch's (s, a, w)
     B:        [n, d]     B(s'_j) for the batch's next states
-    target_M: [n, n]     min_k Fbar_k(s'_i, pi(s'_i), w_i)^T Bbar(s'_j)   (stop-gradient)
+    target_M: [n, n]     Fbar(s'_i, pi(s'_i), w_i)^T Bbar(s'_j), mean or min over the
+                         twin heads (Config.twin_target)                      (stop-gradient)
 
     L = sum_k [ 0.5 * mean_{i != j} (M_k[i, j] - gamma target_M[i, j])^2 - mean_i M_k[i, i] ]
     with M_k = F_k B^T: the off-diagonal pairs estimate the measure on independent
@@ -135,14 +136,28 @@ class FBAgent:
         high = jnp.asarray(self.env.obs_high, jnp.float32)
         return (obs - low) / (high - low)
 
+    def obs_features(self, obs: Array) -> Array:
+        """Network input for an observation (Config.obs_encoding).
+
+        "raw":    the normalised coordinates, [..., obs_dim].
+        "onehot": one-hot of each integer coordinate, [..., sum of (high - low + 1)]; for
+                  grid observations. Same information as (x, y), but lets an MLP carve
+                  the sharp wall discontinuities of a successor measure on a grid.
+        """
+        if self.cfg.obs_encoding == "raw":
+            return self.normalize_obs(obs)
+        idx = jnp.round(obs - jnp.asarray(self.env.obs_low)).astype(jnp.int32)
+        sizes = [int(h - l) + 1 for l, h in zip(self.env.obs_low, self.env.obs_high)]
+        return jnp.concatenate([jax.nn.one_hot(idx[..., i], n) for i, n in enumerate(sizes)], -1)
+
     def forward(self, F_params, obs: Array, task: Task) -> Array:
         """F for all actions: [2, ..., n_actions, d]."""
         w = jnp.concatenate([task.z, task.h], -1)
-        return self.F_net.apply(F_params, self.normalize_obs(obs), w)
+        return self.F_net.apply(F_params, self.obs_features(obs), w)
 
     def backward(self, B_params, obs: Array) -> Array:
         """B(s): [..., d], on the sphere of radius sqrt(d)."""
-        return self.B_net.apply(B_params, self.normalize_obs(obs))
+        return self.B_net.apply(B_params, self.obs_features(obs))
 
     def q_values(self, params: FBParams, obs: Array, task: Task) -> Array:
         """Q(s, a) = min_k F_k(s, a, w)^T z: [..., n_actions]."""
@@ -152,7 +167,7 @@ class FBAgent:
     # -- protocol ----------------------------------------------------------------------
     def init(self, key: Array) -> FBState:
         k_F, k_B = jax.random.split(key)
-        obs = jnp.zeros((1, self.env.obs_dim))
+        obs = self.obs_features(jnp.asarray([self.env.obs_low], jnp.float32))
         task = Task(z=jnp.zeros((1, self.cfg.d)), h=jnp.zeros((1, self.h_dim)))
         w = jnp.concatenate([task.z, task.h], -1)
         params = FBParams(F=self.F_net.init(k_F, obs, w), B=self.B_net.init(k_B, obs))
@@ -186,7 +201,10 @@ class FBAgent:
         B_next = self.backward(params.B, batch.next_obs)                     # [n, d]
         target_F = self.target_next_F(target, batch.next_obs, task)          # [2, n, d]
         target_B = self.backward(target.B, batch.next_obs)
-        target_M = jnp.min(jnp.einsum("knd,md->knm", target_F, target_B), axis=0)
+        target_Ms = jnp.einsum("knd,md->knm", target_F, target_B)         # [2, n, n]
+        # "mean" (metamotivo's default): min is a per-step downward bias that the TD
+        # recursion amplifies by 1/(1-gamma) on the off-diagonal (unbounded-sign) measure.
+        target_M = jnp.mean(target_Ms, 0) if self.cfg.twin_target == "mean" else jnp.min(target_Ms, 0)
         l_fb, metrics = fb_loss(F, B_next, target_M, self.cfg.gamma)
         l_ortho = ortho_loss(B_next)
         metrics = dict(metrics, fb_loss=l_fb, ortho_loss=l_ortho,

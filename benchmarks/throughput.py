@@ -1,0 +1,89 @@
+"""Throughput of the compiled pieces on this machine (prints a Markdown table).
+
+    python benchmarks/throughput.py            # all
+    python benchmarks/throughput.py --quick    # smaller sizes
+
+Measures, after one warm-up call (compile excluded):
+  - gridworld env steps/s: 4096 vmapped fourrooms envs x 1000 random steps;
+  - dataset collection: 1e6 transitions (20 layouts x 500 episodes x 100 steps);
+  - update steps/s of each algo's CPU preset, 1 seed and 3 vmapped seeds.
+"""
+
+from __future__ import annotations
+
+import argparse
+import platform
+import time
+
+import jax
+import jax.numpy as jnp
+
+import zsbfm
+from zsbfm.data import collect
+from zsbfm.envs import index_contexts
+from zsbfm.train import make_train, seed_keys
+
+
+def timed(fn, *args, repeat=3):
+    out = fn(*args)
+    jax.block_until_ready(out)
+    best = float("inf")
+    for _ in range(repeat):
+        t = time.perf_counter()
+        jax.block_until_ready(fn(*args))
+        best = min(best, time.perf_counter() - t)
+    return best
+
+
+def env_steps(n_envs=4096, n_steps=1000):
+    env = zsbfm.make_env("fourrooms")
+    ctx = index_contexts(env.contexts("train"), jnp.arange(n_envs) % 20)
+
+    @jax.jit
+    def run(key):
+        states = jax.vmap(env.reset)(jax.random.split(key, n_envs), ctx)
+
+        def step(s, k):
+            s = jax.vmap(env.step)(s, jax.random.randint(k, (n_envs,), 0, 4))
+            return s, s.obs
+
+        return jax.lax.scan(step, states, jax.random.split(key, n_steps))[1]
+
+    return n_envs * n_steps / timed(run, jax.random.PRNGKey(0))
+
+
+def collection(layouts=20, episodes=500):
+    env = zsbfm.make_env("fourrooms", n_train=layouts)
+    f = jax.jit(lambda k: collect(env, k, env.contexts("train"), episodes))
+    return timed(f, jax.random.PRNGKey(0))
+
+
+def updates(algo, seeds, steps=200):
+    cfg = zsbfm.Config.preset("fourrooms", algo, num_seeds=seeds, chunk_steps=steps)
+    tr = make_train(cfg)
+    carry = jax.jit(jax.vmap(tr.init))(seed_keys(cfg))
+    ds = jax.jit(jax.vmap(tr.collect_data))(carry)
+    f = jax.jit(jax.vmap(tr.run_chunk, in_axes=(0, 0, None)))
+    # a chunk in the FB phase (for belief algos: after the encoder phase)
+    chunk = jnp.int32(cfg.num_chunks - 1)
+    return seeds * steps / timed(lambda c: f(c, ds, chunk), carry, repeat=2)
+
+
+def main():
+    p = argparse.ArgumentParser()
+    p.add_argument("--quick", action="store_true")
+    a = p.parse_args()
+    print(f"machine: {platform.processor() or platform.machine()}, {jax.device_count()} "
+          f"{jax.default_backend()} device(s), jax {jax.__version__}\n")
+    print("| measurement | value |\n|---|---|")
+    n = 1024 if a.quick else 4096
+    print(f"| fourrooms env steps/s ({n} envs x 1000 steps, vmapped) | {env_steps(n):,.0f} |")
+    print(f"| collect 1e6 transitions (20 layouts x 500 episodes) | {collection():.3f} s |")
+    for algo in ("fb", "bfb", "rfb"):
+        for seeds in (1, 3):
+            print(f"| {algo} CPU-preset updates/s x seeds ({seeds} seed{'s' if seeds > 1 else ''}) "
+                  f"| {updates(algo, seeds, 100 if a.quick else 200):,.0f} |", flush=True)
+
+
+if __name__ == "__main__":
+    main()
