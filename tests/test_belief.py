@@ -97,7 +97,8 @@ def test_discrete_actions_enter_the_encoder_one_hot():
     cfg = zsbfm.Config.preset("fourrooms", "bfb")
     agent = make_agent(cfg, zsbfm.make_env("fourrooms"))
     tok = agent.tokens(jnp.zeros((5, 2)), jnp.array([0, 1, 2, 3, 1]), jnp.zeros((5, 2)))
-    np.testing.assert_array_equal(np.asarray(tok[:, 2:6]), np.eye(4)[[0, 1, 2, 3, 1]])
+    k = agent.obs_features(jnp.zeros((1, 2))).shape[-1]  # tokens: [phi(s), a, phi(s'), s' - s]
+    np.testing.assert_array_equal(np.asarray(tok[:, k:k + 4]), np.eye(4)[[0, 1, 2, 3, 1]])
 
 
 def test_rfb_requires_h_dim_equal_d():
@@ -106,13 +107,13 @@ def test_rfb_requires_h_dim_equal_d():
 
 
 def test_short_encoder_pretraining_separates_fourrooms_layouts():
-    """After a short pre-training, fresh episodes of the same layout sit closer in h than
-    episodes of different layouts, and nearest neighbours find the layout above chance."""
+    """After a short pre-training (seconds), fresh episodes of the same layout sit closer in
+    h than episodes of different layouts, and nearest neighbours find the layout."""
     from zsbfm.data import collect
 
     n_layouts = 4
     cfg = zsbfm.Config.preset("fourrooms", "bfb", n_train_layouts=n_layouts, episodes_per_layout=200,
-                              enc_target="context", enc_steps=600, steps=1000, chunk_steps=200,
+                              enc_target="context", enc_steps=6000, steps=7000, chunk_steps=500,
                               enc_embed=32, enc_mlp=64, pred_hidden=(64, 64), d=16)
     env = zsbfm.make_env("fourrooms", n_train=n_layouts)
     agent = make_agent(cfg, env)
@@ -129,6 +130,6 @@ def test_short_encoder_pretraining_separates_fourrooms_layouts():
     D = np.linalg.norm(h[:, None] - h[None], axis=-1)
     same, off = ids[:, None] == ids[None], ~np.eye(len(ids), dtype=bool)
     d_same, d_diff = D[same & off].mean(), D[~same].mean()
-    assert d_diff > 1.05 * d_same, (d_same, d_diff)
+    assert d_diff > 1.5 * d_same, (d_same, d_diff)
     nn = ids[(D + 1e9 * np.eye(len(ids))).argmin(1)]
-    assert np.mean(nn == ids) > 1.5 / n_layouts, np.mean(nn == ids)
+    assert np.mean(nn == ids) > 0.6, np.mean(nn == ids)  # chance: 1 / n_layouts = 0.25

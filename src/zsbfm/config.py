@@ -57,22 +57,22 @@ class Config:
 
     # --- Belief-FB / Rotation-FB (ignored by fb) -------------------------------------------
     h_dim: int = 0               # dimension of the context h; 0 -> d (rfb needs h_dim = d)
-    enc_embed: int = 64          # transformer width
+    enc_embed: int = 32          # transformer width
     enc_heads: int = 4
     enc_layers: int = 2
-    enc_mlp: int = 128
-    pred_hidden: tuple[int, ...] = (128, 128)   # predictor g(s, a, h) -> s'
+    enc_mlp: int = 64
+    pred_hidden: tuple[int, ...] = (64, 64)     # predictor g(s, a, h) -> s'
     enc_lr: float = 1e-3
     enc_beta: float = 1e-6       # weight of KL(q(h | episode) || N(0, I)) in the encoder loss
-    enc_steps: int = 2_000       # K: encoder pre-training steps before FB (staged mode)
+    enc_steps: int = 8_000       # K: encoder pre-training steps before FB (staged mode)
     enc_batch: int = 16          # episodes (context windows) per encoder batch
-    enc_target: str = "episode"  # predict the window's own transitions, or another episode's of its layout ("context")
+    enc_target: str = "context"  # predict the window's own transitions, or another episode's of its layout ("context")
     encoder_mode: str = "staged"  # "staged": f_dyn first, then FB on stop_grad(h); "joint"
     windows_per_episode: int = 4  # h-table windows per episode when context_len < episode_len
     kappa: float = 50.0          # vMF concentration of Rotation-FB's training z
 
     # --- schedule -------------------------------------------------------------------------
-    steps: int = 10_000          # gradient steps per seed
+    steps: int = 10_000          # gradient steps per seed (belief algos: enc_steps more)
     chunk_steps: int = 1_000     # steps per compiled chunk (progress/metrics/checkpoint)
     checkpoint: bool = True      # write an orbax checkpoint after every chunk
 
@@ -180,6 +180,8 @@ class Config:
             raise ValueError(f"Config.size={size!r} is invalid: expected one of {SIZES}")
         base: dict[str, Any] = dict(env=env, algo=algo, size=size)
         base.update(_PRESETS.get((env, size), {}))
+        if algo in ("bfb", "rfb"):  # the encoder phase comes on top of the FB steps
+            base.update(_BELIEF_PRESETS[size])
         base.update(overrides)
         return Config(**base)
 
@@ -225,6 +227,12 @@ class Config:
 _PAPER_DISCRETE = dict(d=100, f_pre_hidden=(1024,), f_pre_out=512, f_hidden=(1024, 1024),
                        b_hidden=(256, 256, 256), lr=1e-4, batch_size=1024, gamma=0.99,
                        tau=0.05, steps=1_000_000, chunk_steps=10_000)
+
+_BELIEF_PRESETS: dict[str, dict[str, Any]] = {
+    "cpu": dict(enc_steps=8_000, steps=18_000),
+    "paper": dict(enc_steps=10_000, steps=1_010_000, enc_embed=128, enc_mlp=256,
+                  pred_hidden=(256, 256, 256), enc_lr=1e-4),
+}
 
 _PRESETS: dict[tuple[str, str], dict[str, Any]] = {
     ("fourrooms", "cpu"): dict(n_train_layouts=20, episodes_per_layout=500),

@@ -78,14 +78,9 @@ def make_train(cfg: Config) -> Trainer:
         lax.cond (a batched predicate would turn the cond into a select of both branches)."""
         TRACE_COUNTS["run_chunk"] += 1
         key, chunk_key = jax.random.split(carry.key)
-        steps = chunk * cfg.chunk_steps + jnp.arange(cfg.chunk_steps)
-
-        def step(state, xs):
-            k, global_step = xs
-            return agent.update(state, dataset, k, global_step)
-
-        state, metrics = jax.lax.scan(step, carry.agent_state,
-                                      (jax.random.split(chunk_key, cfg.chunk_steps), steps))
+        state, metrics = agent.run_steps(carry.agent_state, dataset,
+                                         jax.random.split(chunk_key, cfg.chunk_steps),
+                                         chunk * cfg.chunk_steps)
         metrics = jax.tree_util.tree_map(jnp.mean, metrics)
         return carry.replace(agent_state=state, key=key, chunk=carry.chunk + 1), metrics
 
@@ -132,7 +127,8 @@ def train(cfg: Config, resume: bool = True, progress: bool = True,
     """Train every seed of `cfg` together (jax.vmap), evaluate, save and return a `Run`.
 
     resume:   continue from the newest checkpoint in runs/<name>/ if it was written by
-              the same config (a different config there is an error, not an overwrite).
+              the same config (a different config there is an error, not an overwrite);
+              resume=False deletes runs/<name>/ and starts over.
     callback: called on the host after each chunk as callback(chunk, metrics_row).
     """
     run_dir = os.path.abspath(os.path.join(cfg.runs_dir, cfg.run_name))
@@ -140,13 +136,12 @@ def train(cfg: Config, resume: bool = True, progress: bool = True,
     if os.path.exists(cfg_path):
         with open(cfg_path) as f:
             old = Config.from_dict(json.load(f))
-        if old != cfg:
-            diff = {k: (v, getattr(cfg, k)) for k, v in old.to_dict().items() if getattr(cfg, k) != v
-                    and not (isinstance(v, list) and tuple(v) == getattr(cfg, k))}
-            raise ValueError(f"{run_dir} holds a run with a different config {diff}; "
-                             "choose another name (Config.name / --name) or delete that directory")
         if not resume:
             shutil.rmtree(run_dir)
+        elif old != cfg:
+            diff = {k: (v, getattr(cfg, k)) for k, v in old.to_dict().items() if getattr(cfg, k) != v}
+            raise ValueError(f"{run_dir} holds a run with a different config {diff}; choose another "
+                             "name (Config.name / --name), or start over (resume=False / --no-resume)")
     os.makedirs(run_dir, exist_ok=True)
     with open(cfg_path, "w") as f:
         f.write(cfg.to_json())

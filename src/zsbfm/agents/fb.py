@@ -194,6 +194,15 @@ class FBAgent:
         # replace, not a new FBState: the belief flavours' states carry extra fields.
         return state.replace(params=params, target=target, opt_state=opt_state, step=state.step + 1), metrics
 
+    def run_steps(self, state, dataset, keys: Array, first_step: Array):
+        """len(keys) updates as one scan; first_step is the unbatched global step of the first.
+
+        Returns (state, metrics stacked over steps). Agents with training phases override
+        this to branch once per chunk rather than once per step.
+        """
+        steps = first_step + jnp.arange(keys.shape[0])
+        return jax.lax.scan(lambda s, xs: self.update(s, dataset, *xs), state, (keys, steps))
+
     def loss(self, params: FBParams, target: FBParams, batch: Transitions, task: Task):
         """FB TD loss + ortho_coef * orthonormality loss for one batch."""
         F_all = self.forward(params.F, batch.obs, task)                      # [2, n, A, d]
