@@ -64,7 +64,7 @@ class Config:
     pred_hidden: tuple[int, ...] = (64, 64)     # predictor g(s, a, h) -> s'
     enc_lr: float = 1e-3
     enc_beta: float = 1e-6       # weight of KL(q(h | episode) || N(0, I)) in the encoder loss
-    enc_steps: int = 8_000       # K: encoder pre-training steps before FB (staged mode)
+    enc_steps: int = 4_000       # K: encoder pre-training steps before FB (staged mode)
     enc_batch: int = 16          # episodes (context windows) per encoder batch
     enc_target: str = "context"  # predict the window's own transitions, or another episode's of its layout ("context")
     encoder_mode: str = "staged"  # "staged": f_dyn first, then FB on stop_grad(h); "joint"
@@ -229,7 +229,7 @@ _PAPER_DISCRETE = dict(d=100, f_pre_hidden=(1024,), f_pre_out=512, f_hidden=(102
                        tau=0.05, steps=1_000_000, chunk_steps=10_000)
 
 _BELIEF_PRESETS: dict[str, dict[str, Any]] = {
-    "cpu": dict(enc_steps=8_000, steps=18_000),
+    "cpu": dict(enc_steps=4_000, steps=14_000),
     "paper": dict(enc_steps=10_000, steps=1_010_000, enc_embed=128, enc_mlp=256,
                   pred_hidden=(256, 256, 256), enc_lr=1e-4),
 }
