@@ -133,3 +133,30 @@ def test_short_encoder_pretraining_separates_fourrooms_layouts():
     assert d_diff > 1.5 * d_same, (d_same, d_diff)
     nn = ids[(D + 1e9 * np.eye(len(ids))).argmin(1)]
     assert np.mean(nn == ids) > 0.6, np.mean(nn == ids)  # chance: 1 / n_layouts = 0.25
+
+
+def test_staged_phases_touch_only_their_own_parameters():
+    from zsbfm.data import collect
+
+    cfg = zsbfm.Config.preset("fourrooms", "bfb", n_train_layouts=2, episodes_per_layout=4, d=8,
+                              f_pre_hidden=(8,), f_pre_out=8, f_hidden=(8,), b_hidden=(8,), batch_size=8,
+                              enc_batch=2, enc_embed=8, enc_mlp=8, pred_hidden=(8,),
+                              enc_steps=1000, steps=2000)
+    env = zsbfm.make_env("fourrooms", n_train=2)
+    agent = make_agent(cfg, env)
+    ds = collect(env, jax.random.PRNGKey(0), env.contexts("train"), 4)
+    s0 = agent.init(jax.random.PRNGKey(0))
+    same = lambda a, b: all(np.array_equal(x, y) for x, y in
+                            zip(jax.tree_util.tree_leaves(a), jax.tree_util.tree_leaves(b)))
+    s1, m1 = agent.update(s0, ds, jax.random.PRNGKey(1), jnp.int32(3))        # encoder phase
+    assert same(s0.params.F, s1.params.F) and same(s0.params.B, s1.params.B)
+    assert not same(s0.params.enc["encoder"], s1.params.enc["encoder"])
+    assert np.isfinite(m1["enc_mse"]) and np.isnan(m1["fb_loss"])
+    s2, m2 = agent.update(s1, ds, jax.random.PRNGKey(2), jnp.int32(1000))     # first FB step
+    assert same(s1.params.enc["encoder"], s2.params.enc["encoder"])
+    assert not same(s1.params.F, s2.params.F)
+    assert np.isfinite(m2["fb_loss"]) and np.isnan(m2["enc_mse"])
+    # the h table holds the standardised mu of every episode
+    mu, _ = agent.encode(s2.params.enc, ds.obs[:, :-1], ds.action, ds.obs[:, 1:])
+    np.testing.assert_allclose(np.asarray(s2.h_table[:, 0]), np.asarray(agent.standardize(s2.params.enc, mu)),
+                               rtol=1e-4, atol=1e-4)

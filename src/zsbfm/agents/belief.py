@@ -214,45 +214,26 @@ class BeliefFBAgent(FBAgent):
         return state.h_table[batch.episode, w]
 
     # -- the update ----------------------------------------------------------------------------
-    def _phases(self, dataset, k_pre, k_table, k_fb, step):
-        """The two staged phases as functions of the state, and their metric shapes."""
-        K = self.cfg.enc_steps
-
-        def pre(s):
-            return self.pretrain_step(s, dataset, k_pre)
-
-        def fb(s):
-            s = jax.lax.cond(step == K, lambda s: self.build_h_table(s, dataset, k_table),
-                             lambda s: s, s)
-            return FBAgent.update(self, s, dataset, k_fb)
-
-        return pre, fb
-
     @staticmethod
     def _pad(metrics: dict, other_shapes: dict) -> dict:
         """Each phase reports its own metrics; the other phase's read NaN ("not in this phase")."""
         return {**{k: jnp.full(v.shape, jnp.nan, v.dtype) for k, v in other_shapes.items()}, **metrics}
 
     def update(self, state: BeliefState, dataset, key: Array, step: Array) -> tuple[BeliefState, dict]:
-        """One step: encoder step while step < enc_steps, else FB step (the h table is built
-        at step enc_steps). `step` must be unbatched across seeds (see train.run_chunk).
-        The training loop uses `run_steps`, which branches once per chunk instead."""
-        if self.cfg.encoder_mode == "joint":
-            return self.joint_update(state, dataset, key)
-        pre, fb = self._phases(dataset, *jax.random.split(key, 3), step)
-        pre_shape, fb_shape = jax.eval_shape(pre, state)[1], jax.eval_shape(fb, state)[1]
-        return jax.lax.cond(step < self.cfg.enc_steps,
-                            lambda s: (lambda o: (o[0], self._pad(o[1], fb_shape)))(pre(s)),
-                            lambda s: (lambda o: (o[0], self._pad(o[1], pre_shape)))(fb(s)), state)
+        """One step: an encoder step while step < enc_steps, else an FB step (the h table is
+        built at step enc_steps). `step` must be unbatched across seeds (see
+        train.run_chunk). A chunk of one step of `run_steps`, the one mechanism for both."""
+        state, metrics = self.run_steps(state, dataset, key[None], step)
+        return state, jax.tree_util.tree_map(lambda m: m[0], metrics)
 
     def run_steps(self, state: BeliefState, dataset, keys: Array, first_step: Array):
         """A chunk of updates, all in one phase (Config checks enc_steps % chunk_steps == 0).
 
-        The phase is chosen once per chunk with lax.cond around a whole scan: a cond per
-        step would hand the full dataset to the conditional at every step (slow on CPU).
+        The phase is chosen once per chunk with lax.cond around a whole scan, rather than
+        once per step inside it.
         """
         if self.cfg.encoder_mode == "joint":
-            return FBAgent.run_steps(self, state, dataset, keys, first_step)
+            return jax.lax.scan(lambda s, k: self.joint_update(s, dataset, k), state, keys)
         K = self.cfg.enc_steps
         k_table = jax.random.fold_in(keys[0], 1)
 
