@@ -37,7 +37,7 @@ from flax import struct
 
 from zsbfm.agents.base import Context, Task
 from zsbfm.agents.fb import FBAgent, FBParams, mix_z
-from zsbfm.data.samplers import Transitions
+from zsbfm.data.samplers import Transitions, sample_windows
 from zsbfm.nets.encoder import ContextEncoder, Predictor
 from zsbfm.ops.sphere import project_to_sphere
 from zsbfm.ops.vmf import sample_vmf
@@ -156,8 +156,6 @@ class BeliefFBAgent(FBAgent):
 
     def sample_episode_windows(self, key, dataset, n):
         """n random episodes and one context window of each: (episode [n], obs, action, next_obs)."""
-        from zsbfm.data.samplers import sample_windows
-
         k_e, k_w = jax.random.split(key)
         ep = jax.random.randint(k_e, (n,), 0, dataset.num_episodes)
         return (ep,) + sample_windows(k_w, dataset, ep, self.cfg.context_len)
@@ -170,8 +168,6 @@ class BeliefFBAgent(FBAgent):
         same layout (dataset.context_id), so h must carry what episodes of a layout share
         (its walls) rather than what one episode happened to visit.
         """
-        from zsbfm.data.samplers import sample_windows
-
         k_win, k_other, k_tw, k_eps = jax.random.split(key, 4)
         ep, *window = self.sample_episode_windows(k_win, dataset, self.cfg.enc_batch)
         if self.cfg.enc_target == "context":
