@@ -120,7 +120,6 @@ class BeliefFBAgent(FBAgent):
         c = self.cfg
         obs = jnp.asarray([self.env.obs_low], jnp.float32)
         feat = self.obs_features(obs)
-        w = jnp.zeros((1, c.d + self.h_dim))
         a0 = jnp.zeros((1,), jnp.int32) if self.env.discrete else jnp.zeros((1, self.env.action_dim))
         tok = self.tokens(obs[:, None], a0[:, None], obs[:, None])           # [1, 1, token]
         enc = {"encoder": self.encoder_net.init(k_enc, tok, jnp.ones((1, 1), bool)),
@@ -128,7 +127,7 @@ class BeliefFBAgent(FBAgent):
                                                     jnp.zeros((1, self.h_dim))),
                # statistics of mu, set when the h table is built (identity until then)
                "h_mean": jnp.zeros((self.h_dim,)), "h_std": jnp.ones((self.h_dim,))}
-        params = FBParams(F=self.F_net.init(k_F, feat, w), B=self.B_net.init(k_B, feat), enc=enc)
+        params = self.init_fb_params(k_F, k_B).replace(enc=enc)
         n_ep = c.n_train_layouts * c.episodes_per_layout
         return BeliefState(params=params, target=params, opt_state=self.optimizer.init(params),
                            step=jnp.zeros((), jnp.int32), enc_opt_state=self.enc_optimizer.init(enc),

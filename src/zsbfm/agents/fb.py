@@ -165,12 +165,14 @@ class FBAgent:
         return jnp.min(jnp.einsum("k...ad,...d->k...a", F, task.z), axis=0)
 
     # -- protocol ----------------------------------------------------------------------
-    def init(self, key: Array) -> FBState:
-        k_F, k_B = jax.random.split(key)
+    def init_fb_params(self, k_F: Array, k_B: Array) -> FBParams:
+        """Fresh F (input w = [z; h]) and B parameters; enc left None."""
         obs = self.obs_features(jnp.asarray([self.env.obs_low], jnp.float32))
-        task = Task(z=jnp.zeros((1, self.cfg.d)), h=jnp.zeros((1, self.h_dim)))
-        w = jnp.concatenate([task.z, task.h], -1)
-        params = FBParams(F=self.F_net.init(k_F, obs, w), B=self.B_net.init(k_B, obs))
+        w = jnp.zeros((1, self.cfg.d + self.h_dim))
+        return FBParams(F=self.F_net.init(k_F, obs, w), B=self.B_net.init(k_B, obs))
+
+    def init(self, key: Array) -> FBState:
+        params = self.init_fb_params(*jax.random.split(key))
         return FBState(params=params, target=params, opt_state=self.optimizer.init(params),
                        step=jnp.zeros((), jnp.int32))
 

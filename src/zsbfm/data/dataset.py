@@ -33,7 +33,7 @@ class Dataset:
 
     @property
     def episode_len(self) -> int:
-        return self.action.shape[-1] if self.action.ndim == self.obs.ndim - 1 else self.action.shape[-2]
+        return self.obs.shape[-2] - 1  # obs holds s_0 .. s_T
 
     @property
     def num_transitions(self) -> int:
