@@ -14,7 +14,9 @@ import json
 from typing import Any
 
 ENVS = ("doors", "fourrooms")
-ALGOS = ("fb", "bfb", "rfb")
+ALGOS = ("fb", "bfb", "rfb", "oracle", "hilp", "lap", "random")
+BELIEF_ALGOS = ("bfb", "rfb")          # infer h with the context encoder
+SF_ALGOS = ("hilp", "lap")             # successor features on learned state features phi
 ENCODER_MODES = ("staged", "joint")
 SIZES = ("cpu", "paper")
 TARGET_POLICIES = ("greedy", "boltzmann", "uniform")
@@ -57,6 +59,7 @@ class Config:
 
     # --- Belief-FB / Rotation-FB (ignored by fb) -------------------------------------------
     h_dim: int = 0               # dimension of the context h; 0 -> d (rfb needs h_dim = d)
+    h_in_sa: bool = False        # h also enters F's (s, a) preprocessor (paper: only with z)
     enc_embed: int = 32          # transformer width
     enc_heads: int = 4
     enc_layers: int = 2
@@ -70,6 +73,13 @@ class Config:
     encoder_mode: str = "staged"  # "staged": f_dyn first, then FB on stop_grad(h); "joint"
     windows_per_episode: int = 4  # h-table windows per episode when context_len < episode_len
     kappa: float = 50.0          # vMF concentration of Rotation-FB's training z
+
+    # --- successor-feature baselines: HILP, Laplacian (ignored by the FB family) ---------
+    feat_hidden: tuple[int, ...] = (128, 128)  # phi(s) network
+    feat_tau: float = 0.005      # Polyak rate of phi's target (HILP)
+    feat_gamma: float = 0.99     # discount of HILP's goal-conditioned value -|phi(s) - phi(g)|
+    hilp_expectile: float = 0.5  # IQL expectile of HILP's value loss (paper: 0.5 zero-shot, 0.95 GC)
+    hilp_p_traj_goal: float = 0.625  # P(goal = future state of the same episode); else random
 
     # --- schedule -------------------------------------------------------------------------
     steps: int = 10_000          # gradient steps per seed (belief algos: enc_steps more)
@@ -118,13 +128,21 @@ class Config:
             bad("kappa", self.kappa, "kappa > 0")
         if self.algo == "rfb" and self.h_dim not in (0, self.d):
             bad("h_dim", self.h_dim, f"0 or d={self.d} for rfb (z is drawn around h/|h| in R^d)")
-        if self.algo in ("bfb", "rfb") and self.encoder_mode == "staged":
+        if not 0.0 < self.feat_tau <= 1.0:
+            bad("feat_tau", self.feat_tau, "0 < feat_tau <= 1")
+        if not 0.0 < self.feat_gamma < 1.0:
+            bad("feat_gamma", self.feat_gamma, "0 < feat_gamma < 1")
+        if not 0.0 < self.hilp_expectile < 1.0:
+            bad("hilp_expectile", self.hilp_expectile, "0 < hilp_expectile < 1")
+        if not 0.0 <= self.hilp_p_traj_goal <= 1.0:
+            bad("hilp_p_traj_goal", self.hilp_p_traj_goal, "0 <= hilp_p_traj_goal <= 1")
+        if self.algo in BELIEF_ALGOS and self.encoder_mode == "staged":
             if self.enc_steps >= self.steps:
                 bad("enc_steps", self.enc_steps, f"fewer than steps={self.steps} (FB trains after it)")
             if self.enc_steps % self.chunk_steps:
                 bad("enc_steps", self.enc_steps,
                     f"a multiple of chunk_steps={self.chunk_steps} (no chunk straddles two phases)")
-        for f in ("f_pre_hidden", "f_hidden", "b_hidden", "pred_hidden"):
+        for f in ("f_pre_hidden", "f_hidden", "b_hidden", "pred_hidden", "feat_hidden"):
             v = getattr(self, f)
             if not isinstance(v, tuple) or not v or any(not isinstance(h, int) or h <= 0 for h in v):
                 bad(f, v, "a non-empty tuple of positive integers")
@@ -160,8 +178,11 @@ class Config:
 
     @property
     def context_dim(self) -> int:
-        """Dimension of h (0 for context-free algorithms)."""
-        return 0 if self.algo == "fb" else (self.h_dim or self.d)
+        """Dimension of h: the encoder's output for bfb/rfb, the number of train layouts for
+        oracle (a one-hot layout index), 0 for context-free algorithms."""
+        if self.algo == "oracle":
+            return self.n_train_layouts
+        return (self.h_dim or self.d) if self.algo in BELIEF_ALGOS else 0
 
     @property
     def num_chunks(self) -> int:
@@ -180,8 +201,10 @@ class Config:
             raise ValueError(f"Config.size={size!r} is invalid: expected one of {SIZES}")
         base: dict[str, Any] = dict(env=env, algo=algo, size=size)
         base.update(_PRESETS.get((env, size), {}))
-        if algo in ("bfb", "rfb"):  # the encoder phase comes on top of the FB steps
+        if algo in BELIEF_ALGOS:  # the encoder phase comes on top of the FB steps
             base.update(_BELIEF_PRESETS[size])
+        if algo == "random":  # nothing to train: one no-op chunk
+            base.update(steps=base.get("chunk_steps", 1_000))
         base.update(overrides)
         return Config(**base)
 
@@ -226,7 +249,8 @@ class Config:
 
 _PAPER_DISCRETE = dict(d=100, f_pre_hidden=(1024,), f_pre_out=512, f_hidden=(1024, 1024),
                        b_hidden=(256, 256, 256), lr=1e-4, batch_size=1024, gamma=0.99,
-                       tau=0.05, steps=1_000_000, chunk_steps=10_000)
+                       tau=0.05, steps=1_000_000, chunk_steps=10_000,
+                       feat_hidden=(512, 512))
 
 _BELIEF_PRESETS: dict[str, dict[str, Any]] = {
     "cpu": dict(enc_steps=4_000, steps=14_000),

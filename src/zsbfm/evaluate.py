@@ -17,9 +17,10 @@ from zsbfm.envs.base import index_contexts, num_contexts
 
 
 def context_episode(env, key, ctx, length: int) -> Context:
-    """One reward-free behaviour-policy episode of `length` steps in `ctx`."""
+    """One reward-free behaviour-policy episode of `length` steps in `ctx` (and `ctx` itself,
+    which only the oracle diagnostic reads)."""
     obs, action, _ = rollout(env, key, ctx, uniform_policy(env), length)
-    return Context(obs=obs, action=action)
+    return Context(obs=obs, action=action, layout=ctx)
 
 
 def goal_rollout(agent, env, params, key, ctx, context: Context, goal, length: int):

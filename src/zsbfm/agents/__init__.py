@@ -3,8 +3,12 @@
 from zsbfm.agents.base import Agent, Context, Task
 from zsbfm.agents.belief import BeliefFBAgent, BeliefState, RotationFBAgent
 from zsbfm.agents.fb import FBAgent, FBParams, FBState, fb_loss, ortho_loss
+from zsbfm.agents.oracle import OracleFBAgent
+from zsbfm.agents.random import RandomAgent
+from zsbfm.agents.sf import HILPAgent, LaplacianAgent, SFAgent
 
-AGENTS = {"fb": FBAgent, "bfb": BeliefFBAgent, "rfb": RotationFBAgent}
+AGENTS = {"fb": FBAgent, "bfb": BeliefFBAgent, "rfb": RotationFBAgent, "oracle": OracleFBAgent,
+          "hilp": HILPAgent, "lap": LaplacianAgent, "random": RandomAgent}
 
 
 def make_agent(cfg, env) -> Agent:
@@ -14,5 +18,6 @@ def make_agent(cfg, env) -> Agent:
     return AGENTS[cfg.algo](cfg, env)
 
 
-__all__ = ["Agent", "Context", "Task", "FBAgent", "BeliefFBAgent", "RotationFBAgent", "BeliefState", "FBParams", "FBState", "fb_loss",
+__all__ = ["Agent", "Context", "Task", "FBAgent", "OracleFBAgent", "HILPAgent", "LaplacianAgent",
+           "SFAgent", "RandomAgent", "BeliefFBAgent", "RotationFBAgent", "BeliefState", "FBParams", "FBState", "fb_loss",
            "ortho_loss", "make_agent", "AGENTS"]

@@ -29,10 +29,13 @@ class Task:
     """What a policy is conditioned on: z (task direction) and h (dynamics context).
 
     z: float32[..., d]; h: float32[..., h_dim] (h_dim = 0 for context-free agents).
+    goal: None, or the embedded goal for agents that re-infer z from the current state at
+          every step (HILP: z = normalize(phi(goal) - phi(s))).
     """
 
     z: jax.Array
     h: jax.Array
+    goal: Any = None
 
 
 @struct.dataclass
@@ -41,6 +44,7 @@ class Context:
 
     obs: jax.Array     # [T+1, obs_dim]
     action: jax.Array  # [T] or [T, action_dim]
+    layout: Any = None  # the environment context itself; only the oracle agent may read it
 
 
 class Agent(Protocol):

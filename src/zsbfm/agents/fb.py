@@ -116,7 +116,8 @@ class FBAgent:
     @property
     def F_net(self) -> TwinForward:
         c = self.cfg
-        return TwinForward(c.d, self.env.n_actions, c.f_pre_hidden, c.f_pre_out, c.f_hidden)
+        return TwinForward(c.d, self.env.n_actions, c.f_pre_hidden, c.f_pre_out, c.f_hidden,
+                           self.h_dim if c.h_in_sa else 0)
 
     @property
     def B_net(self) -> BackwardNet:
@@ -184,15 +185,16 @@ class FBAgent:
 
         step: the global update index (unbatched across seeds); FB does not need it.
         """
-        k_batch, k_h, k_z = jax.random.split(key, 3)
+        k_batch, k_h, k_z, k_aux = jax.random.split(key, 4)
         batch = sample_transitions(k_batch, dataset, self.cfg.batch_size)
         h = self.train_context(state, dataset, batch, k_h)
         z = self.train_z(state, dataset, batch, h, k_z)
         task = Task(z=jax.lax.stop_gradient(z), h=jax.lax.stop_gradient(h))
-        grads, metrics = jax.grad(self.loss, has_aux=True)(state.params, state.target, batch, task)
+        aux = self.aux_batch(dataset, batch, k_aux)
+        grads, metrics = jax.grad(self.loss, has_aux=True)(state.params, state.target, batch, task, aux)
         updates, opt_state = self.optimizer.update(grads, state.opt_state, state.params)
         params = optax.apply_updates(state.params, updates)
-        target = optax.incremental_update(params, state.target, self.cfg.tau)
+        target = self.update_target(params, state.target)
         # replace, not a new FBState: the belief flavours' states carry extra fields.
         return state.replace(params=params, target=target, opt_state=opt_state, step=state.step + 1), metrics
 
@@ -205,7 +207,15 @@ class FBAgent:
         steps = first_step + jnp.arange(keys.shape[0])
         return jax.lax.scan(lambda s, xs: self.update(s, dataset, *xs), state, (keys, steps))
 
-    def loss(self, params: FBParams, target: FBParams, batch: Transitions, task: Task):
+    def aux_batch(self, dataset, batch: Transitions, key: Array) -> Any:
+        """Extra samples a loss needs beyond the transitions (HILP: goals). FB: none."""
+        return None
+
+    def update_target(self, params: FBParams, target: FBParams) -> FBParams:
+        """Polyak averaging: target <- tau * params + (1 - tau) * target."""
+        return optax.incremental_update(params, target, self.cfg.tau)
+
+    def loss(self, params: FBParams, target: FBParams, batch: Transitions, task: Task, aux=None):
         """FB TD loss + ortho_coef * orthonormality loss for one batch."""
         F_all = self.forward(params.F, batch.obs, task)                      # [2, n, A, d]
         F = jnp.take_along_axis(F_all, batch.action[None, :, None, None], axis=2)[:, :, 0]

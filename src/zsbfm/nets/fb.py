@@ -26,9 +26,13 @@ class ForwardNet(nn.Module):
     pre_out: int
     hidden: Sequence[int]
 
+    h_in_sa: int = 0  # > 0: the last h_in_sa entries of `task` (the context h) also enter pre_sa
+
     @nn.compact
     def __call__(self, obs, task, action=None):
         sa = obs if action is None else jnp.concatenate([obs, action], -1)
+        if self.h_in_sa:
+            sa = jnp.concatenate([sa, task[..., task.shape[-1] - self.h_in_sa:]], -1)
         e_sa = MLP(self.pre_hidden, self.pre_out, name="pre_sa")(sa)
         e_sw = MLP(self.pre_hidden, self.pre_out, name="pre_sw")(jnp.concatenate([obs, task], -1))
         x = jnp.concatenate([e_sa, e_sw], -1)
@@ -46,13 +50,14 @@ class TwinForward(nn.Module):
     pre_hidden: Sequence[int]
     pre_out: int
     hidden: Sequence[int]
+    h_in_sa: int = 0
 
     @nn.compact
     def __call__(self, obs, task, action=None):
         twin = nn.vmap(ForwardNet, variable_axes={"params": 0}, split_rngs={"params": True},
                        in_axes=None, out_axes=0, axis_size=2)
         return twin(self.d, self.n_actions, self.pre_hidden, self.pre_out, self.hidden,
-                    name="F")(obs, task, action)
+                    self.h_in_sa, name="F")(obs, task, action)
 
 
 class BackwardNet(nn.Module):
