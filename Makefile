@@ -9,7 +9,7 @@ VENV   := .venv
 PY     := $(VENV)/bin/python
 STAMP  := $(VENV)/.installed
 
-.PHONY: train test test-all bench data clean help
+.PHONY: train test test-all bench data table clean help
 
 help:
 	@echo "make train [ENV=fourrooms|doors] [ALGO=fb] [SEEDS=3] [SIZE=cpu|paper] [ARGS='--set steps=2000']"
@@ -17,6 +17,7 @@ help:
 	@echo "make test-all    including slow tests"
 	@echo "make bench       throughput benchmarks"
 	@echo "make data        collect and save the ENV dataset"
+	@echo "make table [ENV=fourrooms|doors] [SEEDS=3] [ARGS='--set steps=2000']  every method -> results/ENV.{json,md,png}"
 
 $(STAMP): pyproject.toml
 	test -x $(PY) || $(PYTHON) -m venv $(VENV)
@@ -39,6 +40,9 @@ bench: $(STAMP)
 
 data: $(STAMP)
 	$(PY) -m zsbfm collect --env $(ENV)
+
+table: $(STAMP)
+	$(PY) experiments/table.py --env $(ENV) --seeds $(SEEDS) --size $(SIZE) $(ARGS)
 
 clean:
 	rm -rf runs datasets .pytest_cache

@@ -16,7 +16,7 @@ def train(env: str = "fourrooms", algo: str = "fb", seeds: int = 3, size: str = 
 
     Args:
         env: environment: doors | fourrooms.
-        algo: algorithm: fb.
+        algo: algorithm: fb | bfb | rfb | oracle | hilp | lap | random.
         seeds: number of seeds, trained together with jax.vmap.
         size: preset sizes: cpu (default, for a 2-core machine) | paper (the paper's GPU sizes).
         name: run name (default <env>-<algo>-<size>); output goes to <runs_dir>/<name>/.

@@ -1,0 +1,139 @@
+"""The reproduction harness for the paper's Tables 1-2 and Figure 1.
+
+    make table ENV=fourrooms                     # = python experiments/table.py --env fourrooms
+    python experiments/table.py --env doors --algos fb bfb rfb --set steps=6000
+
+Every method is an ordinary `zsbfm.train` run of its CPU preset with 3 vmapped seeds,
+under runs/<env>-<algo>-<size>/. A finished method (its results.json written by the same
+config) is read back, not retrained; an unfinished one resumes from its last checkpoint;
+so a killed sweep picks up where it stopped. Writes
+
+    results/<env>.json   per method: success per seed (train / test), wall times, run dir
+    results/<env>.md     mean +- std over seeds beside the paper's values, wall time
+    results/<env>.png    bar chart of train and test success (the paper's Figure 1)
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import time
+
+import numpy as np
+
+import zsbfm
+from zsbfm.config import Config
+
+# The paper's Tables 2 (train) and 1 (test): (train, test) success.
+PAPER = {
+    "fourrooms": {"random": (0.18, 0.05), "fb": (0.25, 0.15), "hilp": (0.40, 0.20), "lap": (0.20, 0.10),
+                  "bfb": (0.70, 0.40), "rfb": (0.85, 0.61)},
+}
+NAMES = {"random": "Random", "fb": "FB", "hilp": "HILP", "lap": "Laplacian", "bfb": "Belief-FB",
+         "rfb": "Rotation-FB", "oracle": "Oracle FB (true layout id)"}
+ORDER = ("random", "fb", "hilp", "lap", "bfb", "rfb", "oracle")
+
+
+def finished_results(cfg: Config) -> dict | None:
+    """results.json of a finished run of exactly this config, else None."""
+    run_dir = os.path.join(cfg.runs_dir, cfg.run_name)
+    paths = [os.path.join(run_dir, f) for f in ("config.json", "results.json")]
+    if not all(os.path.exists(p) for p in paths):
+        return None
+    with open(paths[0]) as f:
+        if Config.from_dict(json.load(f)) != cfg:
+            return None
+    with open(paths[1]) as f:
+        return json.load(f)
+
+
+def run_table(env: str, algos, seeds: int, runs_dir: str, overrides, size: str = "cpu") -> dict:
+    rows = {}
+    for i, algo in enumerate(algos):
+        cfg = Config.preset(env, algo, size, num_seeds=seeds, runs_dir=runs_dir).with_overrides(overrides)
+        res = finished_results(cfg)
+        status = "done, read back" if res is not None else "training"
+        print(f"[{i + 1}/{len(algos)}] {NAMES[algo]} ({cfg.run_name}): {status}", flush=True)
+        if res is None:
+            res = zsbfm.train(cfg).results
+        wt = res["wall_time_s"]
+        rows[algo] = {"train": res["train"], "test": res["test"], "wall_time_s": wt["train"] + wt["eval"],
+                      "resumed_from_chunk": res.get("resumed_from_chunk", 0),
+                      "run": os.path.join(runs_dir, cfg.run_name), "steps": cfg.steps}
+    return rows
+
+
+def markdown(env: str, rows: dict, seeds: int, size: str) -> str:
+    paper = PAPER.get(env, {})
+    lines = [f"| {env} ({seeds} seeds, {size} preset) | train success | test success | paper train / test "
+             f"| wall time (train + eval) |", "|---|---|---|---|---|"]
+    for algo, row in rows.items():
+        tr, te = np.asarray(row["train"]), np.asarray(row["test"])
+        pp = paper.get(algo)
+        note = " (resumed)" if row["resumed_from_chunk"] else ""
+        test = "n/a (h = 0)" if algo == "oracle" else f"{te.mean():.2f} +- {te.std():.2f}"
+        lines.append(f"| {NAMES[algo]} | {tr.mean():.2f} +- {tr.std():.2f} | {test} | "
+                     f"{f'{pp[0]:.2f} / {pp[1]:.2f}' if pp else 'n/a'} | {row['wall_time_s']:.0f} s{note} |")
+    total = sum(r["wall_time_s"] for r in rows.values())
+    lines.append(f"\nTotal wall time {total / 60:.1f} min. Oracle test: the oracle knows only train "
+                 "layouts; on a test layout its h is 0 (see zsbfm/agents/oracle.py).")
+    return "\n".join(lines)
+
+
+def bar_chart(env: str, rows: dict, path: str) -> None:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    algos = [a for a in rows if a != "oracle"]
+    x = np.arange(len(algos))
+    fig, axes = plt.subplots(1, 2, figsize=(10, 3.6), sharey=True)
+    for ax, split, k in zip(axes, ("train", "test"), (0, 1)):
+        means = [np.mean(rows[a][split]) for a in algos]
+        stds = [np.std(rows[a][split]) for a in algos]
+        ax.bar(x, means, yerr=stds, capsize=3, color="tab:blue", label="zsbfm (CPU preset)")
+        paper = [PAPER.get(env, {}).get(a, (np.nan, np.nan))[k] for a in algos]
+        ax.scatter(x, paper, marker="_", s=400, color="k", zorder=3, label="paper")
+        ax.set_xticks(x, [NAMES[a].split(" ")[0] for a in algos], rotation=20)
+        ax.set_title(f"{env}: {split} layouts")
+        ax.set_ylim(0, 1)
+    axes[0].set_ylabel("success rate")
+    axes[0].legend(loc="upper left")
+    fig.tight_layout()
+    fig.savefig(path, dpi=120)
+    plt.close(fig)
+
+
+def main():
+    p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("--env", default="fourrooms", choices=["fourrooms", "doors"])
+    p.add_argument("--algos", nargs="+", default=list(ORDER), choices=list(ORDER))
+    p.add_argument("--seeds", type=int, default=3)
+    p.add_argument("--size", default="cpu", choices=["cpu", "paper"])
+    p.add_argument("--runs-dir", default="runs")
+    p.add_argument("--out", default="results")
+    p.add_argument("--set", nargs="*", default=[], help="Config overrides (field=value) for every method")
+    a = p.parse_args()
+    # Validate every config before training anything: a typo fails now, not an hour in.
+    for algo in a.algos:
+        Config.preset(a.env, algo, a.size, num_seeds=a.seeds, runs_dir=a.runs_dir).with_overrides(a.set)
+
+    t0 = time.time()
+    rows = run_table(a.env, a.algos, a.seeds, a.runs_dir, a.set, a.size)
+    os.makedirs(a.out, exist_ok=True)
+    stem = os.path.join(a.out, a.env)
+    with open(stem + ".json", "w") as f:
+        json.dump({"env": a.env, "seeds": a.seeds, "size": a.size, "overrides": a.set, "methods": rows,
+                   "paper": PAPER.get(a.env, {})}, f, indent=2)
+    table = markdown(a.env, rows, a.seeds, a.size)
+    with open(stem + ".md", "w") as f:
+        f.write(table + "\n")
+    bar_chart(a.env, rows, stem + ".png")
+    print(table)
+    print(f"wrote {stem}.json, {stem}.md, {stem}.png in {time.time() - t0:.0f} s")
+
+
+if __name__ == "__main__":
+    main()
