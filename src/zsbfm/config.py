@@ -203,6 +203,10 @@ class Config:
         base.update(_PRESETS.get((env, size), {}))
         if algo in BELIEF_ALGOS:  # the encoder phase comes on top of the FB steps
             base.update(_BELIEF_PRESETS[size])
+        if algo in BELIEF_ALGOS + ("oracle",) and size == "cpu":
+            # h also enters F's (s, a) preprocessor: with h only beside z, F barely used even
+            # the true layout id (oracle, 4 layouts: 0.17 train success; with h_in_sa: 0.42).
+            base.update(h_in_sa=True)
         if algo == "random":  # nothing to train: one no-op chunk
             base.update(steps=base.get("chunk_steps", 1_000))
         base.update(overrides)
