@@ -66,7 +66,7 @@ def main():
     for i, (algo, x, cfg) in enumerate(cfgs):
         res = table.finished_results(cfg)
         print(f"[{i + 1}/{len(cfgs)}] {algo} {X[a.which]}={x:g}: {'read back' if res else 'training'}", flush=True)
-        res = res or zsbfm.train(cfg).results
+        res = res or zsbfm.train(cfg, resume=table.resumable(cfg)).results
         rows.append({"algo": algo, "x": x, "train": res["train"], "test": res["test"],
                      "wall_time_s": res["wall_time_s"]["train"] + res["wall_time_s"]["eval"]})
 

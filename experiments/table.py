@@ -48,6 +48,19 @@ def finished_results(cfg: Config) -> dict | None:
         return json.load(f)
 
 
+def resumable(cfg: Config) -> bool:
+    """False if runs/<name>/ holds a run of another config (an older preset): that run is
+    stale for this table and is started over, with a message, rather than stopping the sweep."""
+    path = os.path.join(cfg.runs_dir, cfg.run_name, "config.json")
+    if not os.path.exists(path):
+        return True
+    with open(path) as f:
+        same = Config.from_dict(json.load(f)) == cfg
+    if not same:
+        print(f"  {path} was written by another config; starting {cfg.run_name} over", flush=True)
+    return same
+
+
 def run_table(env: str, algos, seeds: int, runs_dir: str, overrides, size: str = "cpu") -> dict:
     rows = {}
     for i, algo in enumerate(algos):
@@ -56,7 +69,7 @@ def run_table(env: str, algos, seeds: int, runs_dir: str, overrides, size: str =
         status = "done, read back" if res is not None else "training"
         print(f"[{i + 1}/{len(algos)}] {NAMES[algo]} ({cfg.run_name}): {status}", flush=True)
         if res is None:
-            res = zsbfm.train(cfg).results
+            res = zsbfm.train(cfg, resume=resumable(cfg)).results
         wt = res["wall_time_s"]
         rows[algo] = {"train": res["train"], "test": res["test"], "wall_time_s": wt["train"] + wt["eval"],
                       "resumed_from_chunk": res.get("resumed_from_chunk", 0),
