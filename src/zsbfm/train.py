@@ -175,7 +175,9 @@ def train(cfg: Config, resume: bool = True, progress: bool = True,
             if mngr is not None:
                 mngr.save(chunk + 1, args=ocp.args.StandardSave(carry))
             bar.update(1)
-            bar.set_postfix(fb_loss=f"{np.mean(row.get('fb_loss', np.nan)):.3g}")
+            shown = {k: f"{np.mean(row[k]):.3g}" for k in ("fb_loss", "sf_loss", "enc_mse")
+                     if k in row and np.isfinite(np.mean(row[k]))}  # the phase's own loss
+            bar.set_postfix(shown)
             if callback is not None:
                 callback(chunk + 1, row)
     bar.close()
