@@ -72,6 +72,7 @@ def updates(algo, seeds, steps=200):
 def main():
     p = argparse.ArgumentParser()
     p.add_argument("--quick", action="store_true")
+    p.add_argument("--algos", nargs="+", default=["fb", "bfb", "rfb", "oracle", "hilp", "lap"])
     a = p.parse_args()
     print(f"machine: {platform.processor() or platform.machine()}, {jax.device_count()} "
           f"{jax.default_backend()} device(s), jax {jax.__version__}\n")
@@ -79,7 +80,7 @@ def main():
     n = 1024 if a.quick else 4096
     print(f"| fourrooms env steps/s ({n} envs x 1000 steps, vmapped) | {env_steps(n):,.0f} |")
     print(f"| collect 1e6 transitions (20 layouts x 500 episodes) | {collection():.3f} s |")
-    for algo in ("fb", "bfb", "rfb"):
+    for algo in a.algos:
         for seeds in (1, 3):
             print(f"| {algo} CPU-preset updates/s x seeds ({seeds} seed{'s' if seeds > 1 else ''}) "
                   f"| {updates(algo, seeds, 100 if a.quick else 200):,.0f} |", flush=True)
