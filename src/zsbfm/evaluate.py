@@ -12,14 +12,14 @@ import jax
 import jax.numpy as jnp
 
 from zsbfm.agents.base import Context
-from zsbfm.data.collect import rollout, uniform_policy
+from zsbfm.data.collect import behaviour_rollout, rollout
 from zsbfm.envs.base import index_contexts, num_contexts
 
 
 def context_episode(env, key, ctx, length: int) -> Context:
     """One reward-free behaviour-policy episode of `length` steps in `ctx` (and `ctx` itself,
     which only the oracle diagnostic reads)."""
-    obs, action, _ = rollout(env, key, ctx, uniform_policy(env), length)
+    obs, action, _ = behaviour_rollout(env, key, ctx, length)
     return Context(obs=obs, action=action, layout=ctx)
 
 

@@ -17,19 +17,31 @@ def uniform_policy(env: Env):
 def rollout(env: Env, key: jax.Array, ctx, policy, length: int, goal=None, start=None):
     """One episode of `length` steps in context `ctx` (jittable).
 
-    policy(key, obs) -> action. Returns (obs float32[length+1, obs_dim],
-    action [length, ...], reward float32[length]).
+    policy: a function policy(key, obs) -> action, or an array [length, ...] of open-loop
+    actions. Returns (obs float32[length+1, obs_dim], action [length, ...], reward float32[length]).
     """
     k_reset, k_steps = jax.random.split(key)
     state = env.reset(k_reset, ctx, goal=goal, start=start)
+    open_loop = not callable(policy)
+    keys = jax.random.split(k_steps, length)
 
-    def step(state, k):
-        action = policy(k, state.obs)
+    def step(state, xs):
+        k, a = xs
+        action = a if open_loop else policy(k, state.obs)
         nxt = env.step(state, action)
         return nxt, (nxt.obs, action, nxt.reward)
 
-    _, (obs, action, reward) = jax.lax.scan(step, state, jax.random.split(k_steps, length))
+    _, (obs, action, reward) = jax.lax.scan(step, state, (keys, policy if open_loop else keys))
     return jnp.concatenate([state.obs[None], obs]), action, reward
+
+
+def behaviour_rollout(env: Env, key: jax.Array, ctx, length: int):
+    """One reward-free episode of the environment's behaviour policy: its open-loop
+    `behaviour_actions` if it has them (pointmass: sticky directions), else uniform actions."""
+    if hasattr(env, "behaviour_actions"):
+        k_act, k_roll = jax.random.split(key)
+        return rollout(env, k_roll, ctx, env.behaviour_actions(k_act, length), length)
+    return rollout(env, key, ctx, uniform_policy(env), length)
 
 
 def collect(env: Env, key: jax.Array, contexts, episodes_per_context: int, policy=None) -> Dataset:
@@ -37,14 +49,19 @@ def collect(env: Env, key: jax.Array, contexts, episodes_per_context: int, polic
 
     Episodes are context-major: episode e runs in context e // episodes_per_context.
     Each episode gets its own key; starts are uniformly random free states (env.reset).
+    policy: None for the environment's behaviour policy (`behaviour_rollout`), or
+    policy(key, obs) -> action.
     """
-    policy = policy or uniform_policy(env)
     n_ctx = num_contexts(contexts)
     ctx_id = jnp.repeat(jnp.arange(n_ctx, dtype=jnp.int32), episodes_per_context)
     keys = jax.random.split(key, n_ctx * episodes_per_context)
 
     def one(k, cid):
-        obs, action, _ = rollout(env, k, index_contexts(contexts, cid), policy, env.episode_len)
+        ctx = index_contexts(contexts, cid)
+        if policy is None:
+            obs, action, _ = behaviour_rollout(env, k, ctx, env.episode_len)
+        else:
+            obs, action, _ = rollout(env, k, ctx, policy, env.episode_len)
         return obs, action
 
     obs, action = jax.vmap(one)(keys, ctx_id)

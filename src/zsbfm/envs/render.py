@@ -65,3 +65,44 @@ def render_layouts(path, panels, ncols: int | None = None):
     fig.savefig(path, dpi=110)
     plt.close(fig)
     return path
+
+
+def render_mazes(path, walls, trajectories=None, starts=None, goals=None, unit: float = 4.0,
+                 titles=None, ncols: int | None = None):
+    """Pointmass mazes with trajectories, one panel per maze, to a PNG at `path`.
+
+    walls: bool[n, H, W] (walls[y, x], cells); trajectories: optional list (per maze) of
+    float[T, 2] world-unit paths, or of lists of them; starts / goals: optional float[n, 2].
+    """
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    walls = np.asarray(walls, bool)
+    n = len(walls)
+    ncols = ncols or min(n, 5)
+    nrows = -(-n // ncols)
+    fig, axes = plt.subplots(nrows, ncols, figsize=(3 * ncols, 3 * nrows), squeeze=False)
+    for ax in axes.flat[n:]:
+        ax.axis("off")
+    for i, ax in zip(range(n), axes.flat):
+        h, w = walls[i].shape
+        ax.imshow(walls[i], cmap="gray_r", vmin=0, vmax=1.5, origin="upper", extent=(0, w * unit, h * unit, 0))
+        paths = [] if trajectories is None else trajectories[i]
+        paths = [paths] if isinstance(paths, np.ndarray) and paths.ndim == 2 else paths
+        for tr in paths:
+            tr = np.asarray(tr)
+            ax.plot(tr[:, 0], tr[:, 1], lw=1.0, alpha=0.8)
+        if starts is not None:
+            ax.scatter(*np.asarray(starts[i]), marker="^", color="red", s=60, zorder=3)
+        if goals is not None:
+            ax.add_patch(plt.Circle(tuple(np.asarray(goals[i])), 1.0, color="lime", zorder=3))
+        ax.set_xticks([])
+        ax.set_yticks([])
+        if titles:
+            ax.set_title(titles[i], fontsize=8)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+    return path

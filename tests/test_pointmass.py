@@ -1,0 +1,105 @@
+"""Randomized Pointmass: physics against the closed form, walls never entered, mazes
+against an independent BFS check, behaviour data and rendering."""
+
+from collections import deque
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+import zsbfm
+from zsbfm.data import collect
+from zsbfm.envs.pointmass import (ACCEL, DAMPING, DT, SUBSTEPS, UNIT, MazeContext, PointMass,
+                                  fixed_mazes)
+
+
+def test_free_motion_matches_closed_form():
+    """No walls nearby: constant force a from rest, v(t) = (f/k)(1 - e^{-kt}),
+    x(t) = x0 + (f/k) t - (f/k)(1 - e^{-kt}) / k."""
+    env = PointMass(n_train=1)
+    walls = np.ones((8, 8), bool)
+    walls[1:7, 1:7] = False
+    ctx = MazeContext(walls=jnp.asarray(walls))
+    a = np.array([0.3, -0.2])
+    x0 = np.array([16.0, 16.0])
+    state = env.reset(jax.random.PRNGKey(0), ctx, start=jnp.asarray(x0))
+    f, k = ACCEL * a, DAMPING
+    for n in range(1, 11):
+        state = env.step(state, jnp.asarray(a))
+        t = n * SUBSTEPS * DT
+        x = x0 + f / k * t - f / k * (1 - np.exp(-k * t)) / k
+        v = f / k * (1 - np.exp(-k * t))
+        np.testing.assert_allclose(np.asarray(state.obs), x, atol=1e-4)
+        np.testing.assert_allclose(np.asarray(state.inner.vel), v, atol=1e-4)
+
+
+def test_full_force_random_actions_never_enter_a_wall():
+    env = PointMass(n_train=10)
+    ctxs = env.contexts("train")
+    ds = collect(env, jax.random.PRNGKey(0), ctxs, 8, policy=lambda k, o: jnp.sign(env.random_action(k)))
+    pos = np.asarray(ds.obs)                                              # [E, T+1, 2]
+    walls = np.asarray(ctxs.walls)[np.asarray(ds.context_id)]             # [E, 8, 8]
+    cells = np.floor(pos / UNIT).astype(int)
+    assert (cells >= 1).all() and (cells <= 6).all(), "left the maze interior"
+    e = np.arange(len(pos))[:, None]
+    assert not walls[e, cells[..., 1], cells[..., 0]].any(), "a position inside a wall cell"
+    # and the motion is not trivially stuck: the mass travels
+    assert np.abs(np.diff(pos, axis=1)).sum(-1).mean() > 0.3
+
+
+def independent_bfs(open_cells, start):
+    dist = {start: 0}
+    q = deque([start])
+    while q:
+        x, y = q.popleft()
+        for nx, ny in ((x + 1, y), (x - 1, y), (x, y + 1), (x, y - 1)):
+            if open_cells[ny][nx] and (nx, ny) not in dist:
+                dist[(nx, ny)] = dist[(x, y)] + 1
+                q.append((nx, ny))
+    return dist
+
+
+def test_fixed_mazes_are_valid_and_disjoint():
+    train, test = fixed_mazes(30)
+    assert train.shape == (30, 8, 8) and test.shape == (20, 8, 8)
+    keys = [w.tobytes() for w in np.concatenate([train, test])]
+    assert len(set(keys)) == 50, "duplicates within or across splits"
+    env = PointMass(n_train=30)
+    for walls in np.concatenate([train, test]):
+        assert walls[0].all() and walls[-1].all() and walls[:, 0].all() and walls[:, -1].all()
+        open_cells = (~walls).tolist()
+        frac = (~walls[1:-1, 1:-1]).mean()
+        assert 0.53 <= frac <= 0.88
+        ys, xs = np.nonzero(~walls)
+        start = (int(xs[0]), int(ys[0]))                                   # row-major first
+        dist = independent_bfs(open_cells, start)
+        assert len(dist) == len(xs), "not connected"
+        assert max(dist.values()) < 13
+        ctx = MazeContext(walls=jnp.asarray(walls))
+        goal_cell = tuple(int(c) for c in np.asarray(env.eval_goals(ctx))[0] // UNIT)
+        assert dist[goal_cell] == max(dist.values()), "goal is not the BFS-farthest cell"
+        np.testing.assert_allclose(np.asarray(env.eval_start(ctx)), (np.array(start) + 0.5) * UNIT)
+
+
+def test_behaviour_actions_are_sticky_and_bounded():
+    env = PointMass()
+    a = np.asarray(env.behaviour_actions(jax.random.PRNGKey(0), 5000))
+    assert a.shape == (5000, 2) and np.abs(a).max() <= 1.0
+    # consecutive actions mostly share a direction (new one w.p. 0.1), unlike uniform actions
+    cos = (a[1:] * a[:-1]).sum(-1) / (np.linalg.norm(a[1:], axis=-1) * np.linalg.norm(a[:-1], axis=-1))
+    assert np.mean(cos > 0.5) > 0.75
+    ds = collect(env, jax.random.PRNGKey(1), env.contexts("train"), 2)
+    assert ds.obs.shape == (60, 251, 2) and ds.action.shape == (60, 250, 2)
+
+
+def test_goal_reward_within_radius(tmp_path):
+    env = zsbfm.make_env("pointmass")
+    ctx = jax.tree_util.tree_map(lambda x: x[0], env.contexts("test"))
+    goal = env.eval_goals(ctx)[0]
+    s = env.reset(jax.random.PRNGKey(0), ctx, goal=goal, start=goal + 0.5)
+    s = env.step(s, jnp.zeros(2))
+    assert float(s.reward) == 1.0 and bool(s.done)
+    from zsbfm.envs.render import render_mazes
+    path = render_mazes(tmp_path / "m.png", np.asarray(env.contexts("test").walls[:2]),
+                        trajectories=[np.zeros((3, 2)) + 16, []])
+    assert path.stat().st_size > 0
