@@ -13,14 +13,15 @@ import dataclasses
 import json
 from typing import Any
 
-ENVS = ("doors", "fourrooms")
+ENVS = ("doors", "fourrooms", "pointmass")
+CONTINUOUS_ENVS = ("pointmass",)
 ALGOS = ("fb", "bfb", "rfb", "oracle", "hilp", "lap", "random")
 BELIEF_ALGOS = ("bfb", "rfb")          # infer h with the context encoder
 SF_ALGOS = ("hilp", "lap")             # successor features on learned state features phi
 ENCODER_MODES = ("staged", "joint")
 SIZES = ("cpu", "paper")
 TARGET_POLICIES = ("greedy", "boltzmann", "uniform")
-EPISODE_LEN = {"doors": 100, "fourrooms": 100}
+EPISODE_LEN = {"doors": 100, "fourrooms": 100, "pointmass": 250}
 
 
 @dataclasses.dataclass(frozen=True)
@@ -56,6 +57,11 @@ class Config:
     twin_target: str = "mean"                 # combine the twin target measures: "mean" | "min"
     target_policy: str = "greedy"             # "greedy" | "boltzmann" | "uniform"
     temperature: float = 1.0                  # Boltzmann target-policy temperature
+
+    # --- continuous actions (pointmass): TD3-style actor ------------------------------------
+    actor_hidden: tuple[int, ...] = (256, 256)
+    target_noise: float = 0.2        # std of the target-policy smoothing noise
+    target_noise_clip: float = 0.3
 
     # --- Belief-FB / Rotation-FB (ignored by fb) -------------------------------------------
     h_dim: int = 0               # dimension of the context h; 0 -> d (rfb needs h_dim = d)
@@ -142,7 +148,7 @@ class Config:
             if self.enc_steps % self.chunk_steps:
                 bad("enc_steps", self.enc_steps,
                     f"a multiple of chunk_steps={self.chunk_steps} (no chunk straddles two phases)")
-        for f in ("f_pre_hidden", "f_hidden", "b_hidden", "pred_hidden", "feat_hidden"):
+        for f in ("f_pre_hidden", "f_hidden", "b_hidden", "pred_hidden", "feat_hidden", "actor_hidden"):
             v = getattr(self, f)
             if not isinstance(v, tuple) or not v or any(not isinstance(h, int) or h <= 0 for h in v):
                 bad(f, v, "a non-empty tuple of positive integers")
@@ -160,6 +166,10 @@ class Config:
             bad("temperature", self.temperature, "temperature > 0")
         if self.batch_size < 2:
             bad("batch_size", self.batch_size, "batch_size >= 2 (the FB loss pairs batch items)")
+        if self.env in CONTINUOUS_ENVS and self.obs_encoding != "raw":
+            bad("obs_encoding", self.obs_encoding, f"'raw' for the continuous env {self.env!r} (one-hot needs a grid)")
+        if self.target_noise < 0 or self.target_noise_clip < 0:
+            bad("target_noise", (self.target_noise, self.target_noise_clip), "non-negative noise and clip")
         if self.episode_len != EPISODE_LEN[self.env]:
             bad("episode_len", self.episode_len, f"{EPISODE_LEN[self.env]} for env {self.env!r}")
         if self.context_len > self.episode_len:
@@ -267,4 +277,13 @@ _PRESETS: dict[tuple[str, str], dict[str, Any]] = {
     ("fourrooms", "paper"): dict(n_train_layouts=20, episodes_per_layout=500, **_PAPER_DISCRETE),
     ("doors", "cpu"): dict(n_train_layouts=20, episodes_per_layout=500),
     ("doors", "paper"): dict(n_train_layouts=20, episodes_per_layout=500, **_PAPER_DISCRETE),
+    # 30 train mazes x 133 episodes x 250 steps = 1e6 transitions; contexts are 100-step windows
+    ("pointmass", "cpu"): dict(n_train_layouts=30, episodes_per_layout=133, episode_len=250,
+                               eval_episode_len=250, context_len=100, obs_encoding="raw", gamma=0.98),
+    ("pointmass", "paper"): dict(n_train_layouts=30, episodes_per_layout=133, episode_len=250,
+                                 eval_episode_len=250, context_len=100, obs_encoding="raw",
+                                 d=150, f_pre_hidden=(1024,), f_pre_out=512, f_hidden=(1024, 1024),
+                                 b_hidden=(256, 256, 256), actor_hidden=(1024, 1024), lr=1e-4,
+                                 batch_size=1024, gamma=0.99, tau=0.05, steps=1_000_000,
+                                 chunk_steps=10_000, kappa=100.0, feat_hidden=(512, 512)),
 }

@@ -85,9 +85,9 @@ def plot_value_maps(run, path, seed: int = 0, goal_index: int = 0):
 
     cfg = run.cfg
     env = make_env(cfg.env, n_train=cfg.n_train_layouts, episode_len=cfg.episode_len)
-    if not hasattr(env, "size"):
-        return None
     agent = make_agent(cfg, env)
+    if not hasattr(env, "size") or not hasattr(agent, "q_values") or not env.discrete:
+        return None  # value maps are drawn for gridworld agents with Q-values
     params = jax.tree_util.tree_map(lambda x: x[seed], run.params)
     panels = []
     for split in ("train", "test"):

@@ -258,7 +258,7 @@ class BeliefFBAgent(FBAgent):
         The FB batch is drawn from the enc_batch episodes whose windows gave h.
         """
         c = self.cfg
-        k_win, k_eps, k_tr, k_z = jax.random.split(key, 4)
+        k_win, k_eps, k_tr, k_z, k_aux = jax.random.split(key, 5)
         ep, w_obs, w_act, w_next = self.sample_episode_windows(k_win, dataset, c.enc_batch)
         k_i, k_t = jax.random.split(k_tr)
         which = jax.random.randint(k_i, (c.batch_size,), 0, c.enc_batch)
@@ -272,7 +272,8 @@ class BeliefFBAgent(FBAgent):
             l_enc, (m_enc, mu) = self.encoder_loss(params.enc, window, window, k_eps)
             h = mu[which]
             z = self.train_z(state.replace(params=params), dataset, batch, jax.lax.stop_gradient(h), k_z)
-            l_fb, m_fb = self.loss(params, state.target, batch, Task(z=jax.lax.stop_gradient(z), h=h))
+            aux = self.aux_batch(dataset, batch, k_aux)
+            l_fb, m_fb = self.loss(params, state.target, batch, Task(z=jax.lax.stop_gradient(z), h=h), aux)
             return l_fb + l_enc, {**m_fb, **m_enc}
 
         grads, metrics = jax.grad(total_loss, has_aux=True)(state.params)

@@ -1,8 +1,13 @@
-"""Forward-Backward representations (Touati & Ollivier 2021) for discrete actions.
+"""Forward-Backward representations (Touati & Ollivier 2021), discrete or continuous actions.
 
 The successor measure of the policy pi_z is modelled as
     M^{pi_z}(s, a, ds+) ~= F(s, a, w)^T B(s+) rho(ds+),     w = [z; h],
-and the policy is greedy in Q(s, a) = min_k F_k(s, a, w)^T z.
+with Q(s, a) = min_k F_k(s, a, w)^T z. The two action spaces share the loss and the z
+sampling; only the policy and the target action differ:
+    discrete:    F(s, w) -> [A, d]; pi = argmax_a Q (target: greedy/Boltzmann/uniform);
+    continuous:  F(s, a, w) -> d; a deterministic tanh actor pi(s, w) trained TD3-style to
+                 maximise min_k F_k(s, pi(s, w), w)^T z (F frozen in that loss); target
+                 action pi_target(s', w) + clip(N(0, 0.2^2), -0.3, 0.3), clipped to [-1, 1].
 
 `FBAgent` is written as a small set of hooks so the Belief- and Rotation-FB flavours reuse
 everything here and override only what differs:
@@ -27,7 +32,7 @@ from zsbfm.agents.base import Context, Task
 from zsbfm.config import Config
 from zsbfm.data.samplers import Transitions, sample_states, sample_transitions
 from zsbfm.envs.base import Env
-from zsbfm.nets.fb import BackwardNet, TwinForward
+from zsbfm.nets.fb import Actor, BackwardNet, TwinForward
 from zsbfm.ops.sphere import project_to_sphere, sample_sphere
 
 Array = jax.Array
@@ -88,9 +93,10 @@ def target_policy_weights(q: Array, policy: str, temperature: float) -> Array:
 
 @struct.dataclass
 class FBParams:
-    F: Any
-    B: Any
-    enc: Any = None  # context encoder + predictor (belief flavours); None for FB
+    F: Any             # forward network (successor features psi for the SF agents)
+    B: Any             # backward network (features phi for the SF agents)
+    enc: Any = None    # context encoder + predictor (belief flavours); None for FB
+    actor: Any = None  # deterministic policy (continuous actions); None for discrete
 
 
 @struct.dataclass
@@ -118,6 +124,10 @@ class FBAgent:
         c = self.cfg
         return TwinForward(c.d, self.env.n_actions, c.f_pre_hidden, c.f_pre_out, c.f_hidden,
                            self.h_dim if c.h_in_sa else 0)
+
+    @property
+    def actor_net(self) -> Actor:
+        return Actor(self.env.action_dim, self.cfg.actor_hidden)
 
     @property
     def B_net(self) -> BackwardNet:
@@ -151,17 +161,29 @@ class FBAgent:
         sizes = [int(h - l) + 1 for l, h in zip(self.env.obs_low, self.env.obs_high)]
         return jnp.concatenate([jax.nn.one_hot(idx[..., i], n) for i, n in enumerate(sizes)], -1)
 
-    def forward(self, F_params, obs: Array, task: Task) -> Array:
-        """F for all actions: [2, ..., n_actions, d]."""
+    def forward(self, F_params, obs: Array, task: Task, action: Array | None = None) -> Array:
+        """Discrete: F for all actions [2, ..., n_actions, d]; continuous: F(s, a, w) [2, ..., d]."""
         w = jnp.concatenate([task.z, task.h], -1)
-        return self.F_net.apply(F_params, self.obs_features(obs), w)
+        return self.F_net.apply(F_params, self.obs_features(obs), w, action)
+
+    def forward_sa(self, F_params, obs: Array, action: Array, task: Task) -> Array:
+        """F_k(s, a, w) of the given actions: [2, n, d]."""
+        if self.env.discrete:
+            F_all = self.forward(F_params, obs, task)                         # [2, n, A, d]
+            return jnp.take_along_axis(F_all, action[None, :, None, None], axis=2)[:, :, 0]
+        return self.forward(F_params, obs, task, action)
+
+    def policy(self, actor_params, obs: Array, task: Task) -> Array:
+        """The actor's action pi(s, w) (continuous actions)."""
+        w = jnp.concatenate([task.z, task.h], -1)
+        return self.actor_net.apply(actor_params, self.obs_features(obs), w)
 
     def backward(self, B_params, obs: Array) -> Array:
         """B(s): [..., d], on the sphere of radius sqrt(d)."""
         return self.B_net.apply(B_params, self.obs_features(obs))
 
     def q_values(self, params: FBParams, obs: Array, task: Task) -> Array:
-        """Q(s, a) = min_k F_k(s, a, w)^T z: [..., n_actions]."""
+        """Q(s, a) = min_k F_k(s, a, w)^T z for every discrete action: [..., n_actions]."""
         F = self.forward(params.F, obs, task)
         return jnp.min(jnp.einsum("k...ad,...d->k...a", F, task.z), axis=0)
 
@@ -170,7 +192,12 @@ class FBAgent:
         """Fresh F (input w = [z; h]) and B parameters; enc left None."""
         obs = self.obs_features(jnp.asarray([self.env.obs_low], jnp.float32))
         w = jnp.zeros((1, self.cfg.d + self.h_dim))
-        return FBParams(F=self.F_net.init(k_F, obs, w), B=self.B_net.init(k_B, obs))
+        if self.env.discrete:
+            return FBParams(F=self.F_net.init(k_F, obs, w), B=self.B_net.init(k_B, obs))
+        k_F, k_actor = jax.random.split(k_F)
+        a = jnp.zeros((1, self.env.action_dim))
+        return FBParams(F=self.F_net.init(k_F, obs, w, a), B=self.B_net.init(k_B, obs),
+                        actor=self.actor_net.init(k_actor, obs, w))
 
     def init(self, key: Array) -> FBState:
         params = self.init_fb_params(*jax.random.split(key))
@@ -207,20 +234,23 @@ class FBAgent:
         steps = first_step + jnp.arange(keys.shape[0])
         return jax.lax.scan(lambda s, xs: self.update(s, dataset, *xs), state, (keys, steps))
 
-    def aux_batch(self, dataset, batch: Transitions, key: Array) -> Any:
-        """Extra samples a loss needs beyond the transitions (HILP: goals). FB: none."""
-        return None
+    def aux_batch(self, dataset, batch: Transitions, key: Array) -> dict:
+        """Extra random inputs a loss needs beyond the transitions, as a dict:
+        "noise" (continuous actions: the target-policy smoothing noise, already clipped)."""
+        if self.env.discrete:
+            return {}
+        noise = self.cfg.target_noise * jax.random.normal(key, batch.next_obs.shape[:1] + (self.env.action_dim,))
+        return {"noise": jnp.clip(noise, -self.cfg.target_noise_clip, self.cfg.target_noise_clip)}
 
     def update_target(self, params: FBParams, target: FBParams) -> FBParams:
         """Polyak averaging: target <- tau * params + (1 - tau) * target."""
         return optax.incremental_update(params, target, self.cfg.tau)
 
-    def loss(self, params: FBParams, target: FBParams, batch: Transitions, task: Task, aux=None):
+    def loss(self, params: FBParams, target: FBParams, batch: Transitions, task: Task, aux: dict):
         """FB TD loss + ortho_coef * orthonormality loss for one batch."""
-        F_all = self.forward(params.F, batch.obs, task)                      # [2, n, A, d]
-        F = jnp.take_along_axis(F_all, batch.action[None, :, None, None], axis=2)[:, :, 0]
+        F = self.forward_sa(params.F, batch.obs, batch.action, task)           # [2, n, d]
         B_next = self.backward(params.B, batch.next_obs)                     # [n, d]
-        target_F = self.target_next_F(target, batch.next_obs, task)          # [2, n, d]
+        target_F = self.target_next_F(target, batch.next_obs, task, aux)     # [2, n, d]
         target_B = self.backward(target.B, batch.next_obs)
         target_Ms = jnp.einsum("knd,md->knm", target_F, target_B)         # [2, n, n]
         # "mean" (metamotivo's default): min is a per-step downward bias that the TD
@@ -228,12 +258,29 @@ class FBAgent:
         target_M = jnp.mean(target_Ms, 0) if self.cfg.twin_target == "mean" else jnp.min(target_Ms, 0)
         l_fb, metrics = fb_loss(F, B_next, target_M, self.cfg.gamma)
         l_ortho = ortho_loss(B_next)
-        metrics = dict(metrics, fb_loss=l_fb, ortho_loss=l_ortho,
+        l_actor, m_actor = self.actor_loss(params, batch, task)
+        metrics = dict(metrics, **m_actor, fb_loss=l_fb, ortho_loss=l_ortho,
                        q_mean=jnp.mean(jnp.einsum("knd,nd->kn", F, task.z)))
-        return l_fb + self.cfg.ortho_coef * l_ortho, metrics
+        return l_fb + self.cfg.ortho_coef * l_ortho + l_actor, metrics
 
-    def target_next_F(self, target: FBParams, next_obs: Array, task: Task) -> Array:
-        """Fbar(s', pi(s'), w) averaged over the target policy's actions: [2, n, d]."""
+    def actor_loss(self, params: FBParams, batch: Transitions, task: Task) -> tuple[Array, dict]:
+        """Continuous actions: -mean_i min_k F_k(s_i, pi(s_i, w_i), w_i)^T z_i, with F frozen
+        (stop-gradient), so only the actor moves. Discrete: 0 (the policy is argmax Q)."""
+        if self.env.discrete:
+            return jnp.zeros(()), {}
+        a = self.policy(params.actor, batch.obs, task)
+        F = self.forward(jax.lax.stop_gradient(params.F), batch.obs, task, a)   # [2, n, d]
+        q = jnp.min(jnp.einsum("knd,nd->kn", F, task.z), 0)
+        return -jnp.mean(q), {"actor_q": jnp.mean(q)}
+
+    def target_next_F(self, target: FBParams, next_obs: Array, task: Task, aux: dict) -> Array:
+        """Fbar(s', a', w) at the target policy's next action(s): [2, n, d].
+
+        Discrete: averaged over the target policy's action probabilities. Continuous:
+        a' = clip(pi_target(s', w) + noise, -1, 1) (TD3 target smoothing)."""
+        if not self.env.discrete:
+            a = jnp.clip(self.policy(target.actor, next_obs, task) + aux["noise"], -1.0, 1.0)
+            return self.forward(target.F, next_obs, task, a)
         F_all = self.forward(target.F, next_obs, task)                       # [2, n, A, d]
         q = jnp.min(jnp.einsum("knad,nd->kna", F_all, task.z), axis=0)
         pi = target_policy_weights(q, self.cfg.target_policy, self.cfg.temperature)
@@ -267,5 +314,7 @@ class FBAgent:
         return Task(z=z, h=self.context_h(params, context))
 
     def act(self, params: FBParams, obs: Array, task: Task, key: Array) -> Array:
-        """Greedy action argmax_a min_k F_k(s, a, w)^T z."""
+        """Discrete: greedy argmax_a min_k F_k(s, a, w)^T z; continuous: the actor pi(s, w)."""
+        if not self.env.discrete:
+            return self.policy(params.actor, obs, task)
         return jnp.argmax(self.q_values(params, obs, task), axis=-1)

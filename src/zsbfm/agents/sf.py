@@ -84,9 +84,9 @@ class SFAgent(FBAgent):
         return project_to_sphere(self.phi(B_params, obs))
 
     def update_target(self, params: FBParams, target: FBParams) -> FBParams:
-        return FBParams(F=optax.incremental_update(params.F, target.F, self.cfg.tau),
-                        B=optax.incremental_update(params.B, target.B, self.cfg.feat_tau),
-                        enc=params.enc)
+        """psi (and the actor) at rate tau, phi at its own rate feat_tau."""
+        new = super().update_target(params, target)
+        return new.replace(B=optax.incremental_update(params.B, target.B, self.cfg.feat_tau))
 
     # -- the losses --------------------------------------------------------------------------
     def cumulant(self, phi_params, batch: Transitions) -> Array:
@@ -97,16 +97,16 @@ class SFAgent(FBAgent):
 
     def loss(self, params: FBParams, target: FBParams, batch: Transitions, task: Task, aux=None):
         """SF TD loss (psi) + the feature loss (phi)."""
-        psi_all = self.forward(params.F, batch.obs, task)                      # [2, n, A, d]
-        psi = jnp.take_along_axis(psi_all, batch.action[None, :, None, None], axis=2)[:, :, 0]
+        psi = self.forward_sa(params.F, batch.obs, batch.action, task)        # [2, n, d]
         c = self.cumulant(jax.lax.stop_gradient(params.B), batch)            # [n, d]
-        next_psi = jnp.mean(self.target_next_F(target, batch.next_obs, task), 0)
+        next_psi = jnp.mean(self.target_next_F(target, batch.next_obs, task, aux), 0)
         y = jax.lax.stop_gradient(c + self.cfg.gamma * next_psi)
         l_sf = jnp.sum(0.5 * jnp.mean(jnp.sum((psi - y[None]) ** 2, -1), -1))
         l_phi, metrics = self.feature_loss(params, target, batch, aux)
-        metrics = dict(metrics, sf_loss=l_sf, phi_loss=l_phi,
+        l_actor, m_actor = self.actor_loss(params, batch, task)
+        metrics = dict(metrics, **m_actor, sf_loss=l_sf, phi_loss=l_phi,
                        q_mean=jnp.mean(jnp.einsum("knd,nd->kn", psi, task.z)))
-        return l_sf + l_phi, metrics
+        return l_sf + l_phi + l_actor, metrics
 
     # -- test time ---------------------------------------------------------------------------
     def reward_task(self, params: FBParams, obs: Array, reward: Array, context: Context) -> Task:
@@ -125,23 +125,30 @@ class HILPAgent(SFAgent):
         """V_k(s, g) = -|phi_k(s) - phi_k(g)|: [heads, n] (eps inside the sqrt: finite gradient at 0)."""
         return -jnp.sqrt(jnp.sum((phi_all_s - phi_all_g) ** 2, -1) + 1e-6)
 
-    def aux_batch(self, dataset, batch: Transitions, key: Array) -> Array:
-        """Goals: with prob hilp_p_traj_goal a future state s_{t+k} of the same episode,
-        k ~ Geometric(1 - feat_gamma); otherwise a uniformly random dataset state."""
-        k_fut, k_rand, k_mix = jax.random.split(key, 3)
+    def aux_batch(self, dataset, batch: Transitions, key: Array) -> dict:
+        """Adds "goals": with prob hilp_p_traj_goal a future state s_{t+k} of the same
+        episode, k ~ Geometric(1 - feat_gamma); otherwise a uniformly random dataset state."""
+        k_base, k_fut, k_rand, k_mix = jax.random.split(key, 4)
         future = sample_future(k_fut, dataset, batch.episode, batch.t, self.cfg.feat_gamma)
         rand = sample_states(k_rand, dataset, batch.obs.shape[0])
         use_future = jax.random.uniform(k_mix, batch.obs.shape[:1]) < self.cfg.hilp_p_traj_goal
-        return jnp.where(use_future[:, None], future, rand)
+        return dict(super().aux_batch(dataset, batch, k_base), goals=jnp.where(use_future[:, None], future, rand))
 
-    def feature_loss(self, params, target, batch, goals):
+    def goal_reached(self, obs: Array, goals: Array) -> Array:
+        """s = g: the same cell (grids), within the environment's goal radius (continuous)."""
+        if self.env.discrete:
+            return jnp.all(obs == goals, -1)
+        return jnp.linalg.norm(obs - goals, axis=-1) < getattr(self.env, "goal_radius", 1.0)
+
+    def feature_loss(self, params, target, batch, aux):
         c = self.cfg
+        goals = aux["goals"]
         phi = lambda p, x: self.B_net.apply(p, self.obs_features(x))        # [2, n, d]
         g_online, g_target = phi(params.B, goals), phi(target.B, goals)
         v = self.value(phi(params.B, batch.obs), g_online)                    # [2, n]
         v_t = self.value(phi(target.B, batch.obs), g_target)
         next_v_t = self.value(phi(target.B, batch.next_obs), g_target)
-        reached = jnp.all(batch.obs == goals, -1)
+        reached = self.goal_reached(batch.obs, goals)
         reward, mask = reached.astype(jnp.float32) - 1.0, 1.0 - reached.astype(jnp.float32)
         # IQL: the advantage uses the min over target heads for s' and their mean for s.
         q = reward + c.feat_gamma * mask * jnp.min(next_v_t, 0)

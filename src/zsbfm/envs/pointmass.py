@@ -186,6 +186,7 @@ class PointMass:
     action_dim = 2
     obs_low = (0.0, 0.0)
     obs_high = (SIZE * UNIT, SIZE * UNIT)
+    goal_radius = GOAL_RADIUS
 
     def __post_init__(self):
         if self.n_train < 1:

@@ -69,3 +69,14 @@ class BackwardNet(nn.Module):
     @nn.compact
     def __call__(self, obs):
         return project_to_sphere(MLP(self.hidden, self.d)(obs))
+
+
+class Actor(nn.Module):
+    """Deterministic policy pi(s, w) -> tanh(MLP([s; w])) in [-1, 1]^action_dim."""
+
+    action_dim: int
+    hidden: Sequence[int]
+
+    @nn.compact
+    def __call__(self, obs, task):
+        return jnp.tanh(MLP(self.hidden, self.action_dim)(jnp.concatenate([obs, task], -1)))
