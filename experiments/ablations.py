@@ -42,7 +42,7 @@ X = {"layouts": "n_train_layouts", "context": "context_len", "kappa": "kappa"}
 def main():
     p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--which", required=True, choices=list(SWEEPS))
-    p.add_argument("--env", default="fourrooms", choices=["fourrooms", "doors"])
+    p.add_argument("--env", default="fourrooms", choices=["fourrooms", "doors", "pointmass"])
     p.add_argument("--algos", nargs="+", default=None)
     p.add_argument("--seeds", type=int, default=3)
     p.add_argument("--runs-dir", default="runs")

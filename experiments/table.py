@@ -29,6 +29,8 @@ from zsbfm.config import Config
 PAPER = {
     "fourrooms": {"random": (0.18, 0.05), "fb": (0.25, 0.15), "hilp": (0.40, 0.20), "lap": (0.20, 0.10),
                   "bfb": (0.70, 0.40), "rfb": (0.85, 0.61)},
+    "pointmass": {"random": (0.00, 0.03), "fb": (0.20, 0.10), "hilp": (0.45, 0.25), "lap": (0.15, 0.10),
+                  "bfb": (0.76, 0.45), "rfb": (0.88, 0.55)},
 }
 NAMES = {"random": "Random", "fb": "FB", "hilp": "HILP", "lap": "Laplacian", "bfb": "Belief-FB",
          "rfb": "Rotation-FB", "oracle": "Oracle FB (true layout id)"}
@@ -121,7 +123,7 @@ def bar_chart(env: str, rows: dict, path: str) -> None:
 
 def main():
     p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    p.add_argument("--env", default="fourrooms", choices=["fourrooms", "doors"])
+    p.add_argument("--env", default="fourrooms", choices=["fourrooms", "doors", "pointmass"])
     p.add_argument("--algos", nargs="+", default=list(ORDER), choices=list(ORDER))
     p.add_argument("--seeds", type=int, default=3)
     p.add_argument("--size", default="cpu", choices=["cpu", "paper"])

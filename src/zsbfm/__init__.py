@@ -1,7 +1,7 @@
 """zsbfm: zero-shot behavioural foundation models under changing dynamics, in JAX.
 
 Public API:
-    make_env(name)            environments ("doors", "fourrooms")
+    make_env(name)            environments ("doors", "fourrooms", "pointmass")
     Config                    frozen run configuration with presets (Config.preset)
     train(cfg) -> Run         all seeds of cfg, vmapped, checkpointed, resumable
     evaluate(run, contexts, goals) -> success [seeds, n_contexts, n_goals]

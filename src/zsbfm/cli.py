@@ -15,7 +15,7 @@ def train(env: str = "fourrooms", algo: str = "fb", seeds: int = 3, size: str = 
     """Train all seeds of a preset together (vmapped), evaluate on train and test layouts.
 
     Args:
-        env: environment: doors | fourrooms.
+        env: environment: doors | fourrooms | pointmass.
         algo: algorithm: fb | bfb | rfb | oracle | hilp | lap | random.
         seeds: number of seeds, trained together with jax.vmap.
         size: preset sizes: cpu (default, for a 2-core machine) | paper (the paper's GPU sizes).
@@ -45,9 +45,11 @@ def evaluate(path: str, split: str = "test") -> None:
                       "mean": round(float(success.mean()), 4)}))
 
 
-def collect(env: str = "fourrooms", n_train: int = 20, episodes_per_layout: int = 500,
+def collect(env: str = "fourrooms", n_train: int = 0, episodes_per_layout: int = 0,
             seed: int = 0, out: str = "") -> None:
-    """Collect a uniform-random dataset on the train layouts and save it as .npz."""
+    """Collect the behaviour-policy dataset on the train layouts and save it as .npz.
+
+    n_train / episodes_per_layout: 0 takes the environment's CPU preset."""
     import time
 
     import jax
@@ -56,7 +58,12 @@ def collect(env: str = "fourrooms", n_train: int = 20, episodes_per_layout: int 
     from zsbfm.data import save_dataset
     from zsbfm.envs import make_env
 
-    e = make_env(env, n_train=n_train)
+    from zsbfm.config import Config
+
+    preset = Config.preset(env)
+    n_train = n_train or preset.n_train_layouts
+    episodes_per_layout = episodes_per_layout or preset.episodes_per_layout
+    e = make_env(env, n_train=n_train, episode_len=preset.episode_len)
     t = time.time()
     ds = jax.jit(lambda k: collect_data(e, k, e.contexts("train"), episodes_per_layout))(jax.random.PRNGKey(seed))
     ds.obs.block_until_ready()
