@@ -12,7 +12,8 @@ test, mean +- std over seeds).
 
 Dataset sizes for the layout sweep follow the paper (1e6 transitions in all):
 (layouts, episodes per layout) = (10, 1000), (20, 500), (30, 250)*, (50, 150)*
-(* as the paper lists them: these two hold 0.75e6 transitions).
+(* as the paper lists them: these two hold 0.75e6 transitions); on pointmass (250-step
+episodes) the episodes per maze are 1e6 / (mazes x 250).
 Context length 200 (the paper's largest) is not swept: a context here is a window of one
 episode, and episodes are 100 steps (gluing episodes is a known bug of the prototype).
 """
@@ -20,6 +21,7 @@ episode, and episodes are 100 steps (gluing episodes is a known bug of the proto
 from __future__ import annotations
 
 import argparse
+import hashlib
 import json
 import os
 
@@ -58,15 +60,22 @@ def main():
     for algo in algos:
         for pt in points:
             x = pt[X[a.which]]
+            if a.which == "layouts" and a.env == "pointmass":  # 1e6 transitions of 250 steps
+                pt = dict(pt, episodes_per_layout=round(1_000_000 / (pt["n_train_layouts"] * 250)))
             cfg = Config.preset(a.env, algo, num_seeds=a.seeds, runs_dir=a.runs_dir, **pt)
-            cfg = cfg.with_overrides(a.set + [f"name={a.env}-{algo}-{a.which}-{x:g}"])
+            name = f"{a.env}-{algo}-{a.which}-{x:g}"
+            if a.set:  # shortened or otherwise changed sweeps get their own directories
+                name += "-" + hashlib.sha1(" ".join(sorted(a.set)).encode()).hexdigest()[:8]
+            cfg = cfg.with_overrides(a.set + [f"name={name}"])
             cfgs.append((algo, x, cfg))
 
     rows = []
     for i, (algo, x, cfg) in enumerate(cfgs):
         res = table.finished_results(cfg)
         print(f"[{i + 1}/{len(cfgs)}] {algo} {X[a.which]}={x:g}: {'read back' if res else 'training'}", flush=True)
-        res = res or zsbfm.train(cfg, resume=table.resumable(cfg)).results
+        if res is None:
+            table.set_aside_stale(cfg)
+            res = zsbfm.train(cfg).results
         rows.append({"algo": algo, "x": x, "train": res["train"], "test": res["test"],
                      "wall_time_s": res["wall_time_s"]["train"] + res["wall_time_s"]["eval"]})
 

@@ -4,9 +4,10 @@
     python experiments/table.py --env doors --algos fb bfb rfb --set steps=6000
 
 Every method is an ordinary `zsbfm.train` run of its CPU preset with 3 vmapped seeds,
-under runs/<env>-<algo>-<size>/. A finished method (its results.json written by the same
-config) is read back, not retrained; an unfinished one resumes from its last checkpoint;
-so a killed sweep picks up where it stopped. Writes
+under runs/<env>-<algo>-<size>/ (with --set overrides: runs/<env>-<algo>-<size>-<hash>/).
+A finished method (its results.json written by the same config) is read back, not
+retrained; an unfinished one resumes from its last checkpoint; so a killed sweep picks up
+where it stopped. A directory holding another config is moved aside, never deleted. Writes
 
     results/<env>.json   per method: success per seed (train / test), wall times, run dir
     results/<env>.md     mean +- std over seeds beside the paper's values, wall time
@@ -16,6 +17,8 @@ so a killed sweep picks up where it stopped. Writes
 from __future__ import annotations
 
 import argparse
+import dataclasses
+import hashlib
 import json
 import os
 import time
@@ -37,41 +40,60 @@ NAMES = {"random": "Random", "fb": "FB", "hilp": "HILP", "lap": "Laplacian", "bf
 ORDER = ("random", "fb", "hilp", "lap", "bfb", "rfb", "oracle")
 
 
+def sweep_config(env: str, algo: str, size: str, seeds: int, runs_dir: str, overrides) -> Config:
+    """The preset with `overrides`; overridden runs get their own directory
+    (<env>-<algo>-<size>-<hash of the overrides>) so they never touch the preset's runs."""
+    cfg = Config.preset(env, algo, size, num_seeds=seeds, runs_dir=runs_dir).with_overrides(overrides)
+    if overrides and not cfg.name:
+        digest = hashlib.sha1(" ".join(sorted(overrides)).encode()).hexdigest()[:8]
+        cfg = dataclasses.replace(cfg, name=f"{cfg.run_name}-{digest}")
+    return cfg
+
+
+def _same_run(path: str, cfg: Config) -> bool:
+    """Whether runs/<name>/config.json describes cfg (where it is stored does not count)."""
+    try:
+        with open(path) as f:
+            old = Config.from_dict(json.load(f))
+    except (ValueError, TypeError):  # written by an older Config with other fields
+        return False
+    keep = dict(runs_dir=cfg.runs_dir, name=cfg.name, checkpoint=cfg.checkpoint)
+    return dataclasses.replace(old, **keep) == cfg
+
+
 def finished_results(cfg: Config) -> dict | None:
-    """results.json of a finished run of exactly this config, else None."""
+    """results.json of a finished run of this config, else None."""
     run_dir = os.path.join(cfg.runs_dir, cfg.run_name)
     paths = [os.path.join(run_dir, f) for f in ("config.json", "results.json")]
-    if not all(os.path.exists(p) for p in paths):
+    if not all(os.path.exists(p) for p in paths) or not _same_run(paths[0], cfg):
         return None
-    with open(paths[0]) as f:
-        if Config.from_dict(json.load(f)) != cfg:
-            return None
     with open(paths[1]) as f:
         return json.load(f)
 
 
-def resumable(cfg: Config) -> bool:
-    """False if runs/<name>/ holds a run of another config (an older preset): that run is
-    stale for this table and is started over, with a message, rather than stopping the sweep."""
-    path = os.path.join(cfg.runs_dir, cfg.run_name, "config.json")
-    if not os.path.exists(path):
-        return True
-    with open(path) as f:
-        same = Config.from_dict(json.load(f)) == cfg
-    if not same:
-        print(f"  {path} was written by another config; starting {cfg.run_name} over", flush=True)
-    return same
+def set_aside_stale(cfg: Config) -> None:
+    """If runs/<name>/ holds a run of another config (an older preset), move it to
+    runs/<name>.stale-<n>/ (nothing is deleted) so this sweep can train its own."""
+    run_dir = os.path.join(cfg.runs_dir, cfg.run_name)
+    path = os.path.join(run_dir, "config.json")
+    if os.path.exists(path) and not _same_run(path, cfg):
+        n = 1
+        while os.path.exists(f"{run_dir}.stale-{n}"):
+            n += 1
+        os.rename(run_dir, f"{run_dir}.stale-{n}")
+        print(f"  {run_dir} held another config; moved to {run_dir}.stale-{n}", flush=True)
 
 
 def run_table(env: str, algos, seeds: int, runs_dir: str, overrides, size: str = "cpu") -> dict:
     rows = {}
     for i, algo in enumerate(algos):
-        cfg = Config.preset(env, algo, size, num_seeds=seeds, runs_dir=runs_dir).with_overrides(overrides)
+        cfg = sweep_config(env, algo, size, seeds, runs_dir, overrides)
         res = finished_results(cfg)
         status = "done, read back" if res is not None else "training"
         print(f"[{i + 1}/{len(algos)}] {NAMES[algo]} ({cfg.run_name}): {status}", flush=True)
         if res is None:
-            res = zsbfm.train(cfg, resume=resumable(cfg)).results
+            set_aside_stale(cfg)
+            res = zsbfm.train(cfg).results
         wt = res["wall_time_s"]
         rows[algo] = {"train": res["train"], "test": res["test"], "wall_time_s": wt["train"] + wt["eval"],
                       "resumed_from_chunk": res.get("resumed_from_chunk", 0),
@@ -133,7 +155,7 @@ def main():
     a = p.parse_args()
     # Validate every config before training anything: a typo fails now, not an hour in.
     for algo in a.algos:
-        Config.preset(a.env, algo, a.size, num_seeds=a.seeds, runs_dir=a.runs_dir).with_overrides(a.set)
+        sweep_config(a.env, algo, a.size, a.seeds, a.runs_dir, a.set)
 
     t0 = time.time()
     rows = run_table(a.env, a.algos, a.seeds, a.runs_dir, a.set, a.size)

@@ -155,3 +155,26 @@ def test_table_harness_writes_results_and_reads_finished_runs_back(tmp_path, cap
     assert "| Laplacian |" in md and "0.20 / 0.10" in md  # the paper's LAP values beside ours
     table.bar_chart("fourrooms", rows, str(tmp_path / "fourrooms.png"))
     assert (tmp_path / "fourrooms.png").stat().st_size > 0
+
+
+def test_table_keeps_overridden_and_stale_runs_apart(tmp_path):
+    import dataclasses
+    import sys
+
+    sys.path.insert(0, "experiments")
+    import table
+
+    runs = str(tmp_path)
+    plain = table.sweep_config("fourrooms", "fb", "cpu", 3, runs, [])
+    short = table.sweep_config("fourrooms", "fb", "cpu", 3, runs, ["steps=2000"])
+    assert plain.run_name == "fourrooms-fb-cpu" and short.run_name.startswith("fourrooms-fb-cpu-")
+    assert short.run_name == table.sweep_config("fourrooms", "fb", "cpu", 3, runs, ["steps=2000"]).run_name
+    old_dir = tmp_path / plain.run_name
+    old_dir.mkdir()
+    (old_dir / "config.json").write_text(dataclasses.replace(plain, lr=0.5).to_json())
+    table.set_aside_stale(plain)  # another config: moved aside, not deleted
+    assert not old_dir.exists() and (tmp_path / f"{plain.run_name}.stale-1" / "config.json").exists()
+    old_dir.mkdir()
+    (old_dir / "config.json").write_text(dataclasses.replace(plain, runs_dir="elsewhere").to_json())
+    table.set_aside_stale(plain)  # the same run stored elsewhere: kept
+    assert old_dir.exists()

@@ -279,7 +279,7 @@ class BeliefFBAgent(FBAgent):
         grads, metrics = jax.grad(total_loss, has_aux=True)(state.params)
         updates, opt_state = self.optimizer.update(grads, state.opt_state, state.params)
         params = optax.apply_updates(state.params, updates)
-        target = optax.incremental_update(params, state.target, c.tau)
+        target = self.update_target(params, state.target)
         return state.replace(params=params, target=target, opt_state=opt_state, step=state.step + 1), metrics
 
 

@@ -268,6 +268,7 @@ class FBAgent:
         (stop-gradient), so only the actor moves. Discrete: 0 (the policy is argmax Q)."""
         if self.env.discrete:
             return jnp.zeros(()), {}
+        task = jax.lax.stop_gradient(task)  # only the actor learns from -Q (not an encoder via h)
         a = self.policy(params.actor, batch.obs, task)
         F = self.forward(jax.lax.stop_gradient(params.F), batch.obs, task, a)   # [2, n, d]
         q = jnp.min(jnp.einsum("knd,nd->kn", F, task.z), 0)

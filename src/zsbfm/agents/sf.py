@@ -11,6 +11,7 @@ F holds psi and B holds phi.
 
 Losses (one optimiser step on the sum; phi gets gradients from its own loss only):
     SF:   sum_k 0.5 * mean_i |psi_k(s_i, a_i, z_i) - (c_i + gamma * psibar(s'_i, pi(s'_i), z_i))|^2
+          (psibar: the mean of the twin target heads, as FB's default twin_target)
     HILP: IQL expectile regression of V(s, g) = -|phi(s) - phi(g)| (twin phi heads), reward
           -1 until s = g, goals g = a future state of the same episode (prob p) or a random one
     LAP:  mean |phi(s) - phi(s')|^2 + ortho_coef * orthonormality of phi over the batch
@@ -110,7 +111,11 @@ class SFAgent(FBAgent):
 
     # -- test time ---------------------------------------------------------------------------
     def reward_task(self, params: FBParams, obs: Array, reward: Array, context: Context) -> Task:
-        """z = sqrt(d) normalize(least squares of r on phi(s))."""
+        """z = sqrt(d) normalize(least squares of r on phi(s)).
+
+        For HILP's cumulant phi(s') - phi(s) this is still the right z: sum_t gamma^t
+        (phi_{t+1} - phi_t)^T z is a potential-based shaping of the reward phi(s')^T z
+        (same optimal policy, exactly so without truncation)."""
         z = project_to_sphere(lstsq_z(self.phi(params.B, obs), reward))
         return Task(z=z, h=self.context_h(params, context))
 
@@ -134,12 +139,6 @@ class HILPAgent(SFAgent):
         use_future = jax.random.uniform(k_mix, batch.obs.shape[:1]) < self.cfg.hilp_p_traj_goal
         return dict(super().aux_batch(dataset, batch, k_base), goals=jnp.where(use_future[:, None], future, rand))
 
-    def goal_reached(self, obs: Array, goals: Array) -> Array:
-        """s = g: the same cell (grids), within the environment's goal radius (continuous)."""
-        if self.env.discrete:
-            return jnp.all(obs == goals, -1)
-        return jnp.linalg.norm(obs - goals, axis=-1) < getattr(self.env, "goal_radius", 1.0)
-
     def feature_loss(self, params, target, batch, aux):
         c = self.cfg
         goals = aux["goals"]
@@ -148,7 +147,9 @@ class HILPAgent(SFAgent):
         v = self.value(phi(params.B, batch.obs), g_online)                    # [2, n]
         v_t = self.value(phi(target.B, batch.obs), g_target)
         next_v_t = self.value(phi(target.B, batch.next_obs), g_target)
-        reached = self.goal_reached(batch.obs, goals)
+        # s = g exactly (HILP's index equality): with continuous states this almost never
+        # fires, and V(g, g) = 0 holds by construction of -|phi(s) - phi(g)|.
+        reached = jnp.all(batch.obs == goals, -1)
         reward, mask = reached.astype(jnp.float32) - 1.0, 1.0 - reached.astype(jnp.float32)
         # IQL: the advantage uses the min over target heads for s' and their mean for s.
         q = reward + c.feat_gamma * mask * jnp.min(next_v_t, 0)
@@ -175,10 +176,17 @@ class HILPAgent(SFAgent):
         g = self.phi(params.B, goal_obs)
         return Task(z=project_to_sphere(g), h=self.context_h(params, context), goal=g)
 
+    def state_task(self, params, obs, task: Task) -> Task:
+        """For a goal task, z = sqrt(d) normalize(phi(g) - phi(s)) at the current state."""
+        if task.goal is None:
+            return task
+        return task.replace(z=project_to_sphere(task.goal - self.phi(params.B, obs)))
+
+    def q_values(self, params, obs, task: Task):
+        return super().q_values(params, obs, self.state_task(params, obs, task))
+
     def act(self, params, obs, task: Task, key):
-        if task.goal is not None:
-            task = task.replace(z=project_to_sphere(task.goal - self.phi(params.B, obs)))
-        return super().act(params, obs, task, key)
+        return super().act(params, obs, self.state_task(params, obs, task), key)
 
 
 @dataclasses.dataclass(frozen=True)

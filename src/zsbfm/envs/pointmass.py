@@ -19,7 +19,7 @@ neighbours are open); accepted if 53-88% of the interior is open, all open cells
 4-connected, the BFS distance from the start (the first open cell, row-major) to the
 farthest cell is under 13, and it is not a duplicate. Fixed mazes are generated on the
 host with numpy from fixed seeds (30 train, 20 test, disjoint); `sample_contexts` draws
-from a fixed pool of 128 generated mazes.
+from a fixed pool of 128 generated mazes, none of them a test maze.
 
 Evaluation: start at the centre of the first open cell (row-major), goal at the centre of
 the BFS-farthest reachable cell; success = within GOAL_RADIUS = 1.0 of the goal.
@@ -137,7 +137,9 @@ def fixed_mazes(n_train: int) -> tuple[np.ndarray, np.ndarray]:
 
 @functools.lru_cache(maxsize=None)
 def maze_pool() -> np.ndarray:
-    return draw_mazes(_POOL_SEED, POOL, set())[0]
+    """Mazes for `sample_contexts`: never one of the 20 test mazes."""
+    _, test = fixed_mazes(1)
+    return draw_mazes(_POOL_SEED, POOL, {w.tobytes() for w in test})[0]
 
 
 # --- jnp helpers ----------------------------------------------------------------------------
@@ -202,7 +204,8 @@ class PointMass:
         return MazeContext(walls=jnp.asarray(train if split == "train" else test))
 
     def sample_contexts(self, key: Array, n: int) -> MazeContext:
-        """n mazes drawn from a fixed pool of generated mazes (jittable; may equal fixed ones)."""
+        """n mazes drawn from a fixed pool of generated mazes (jittable; never a test maze,
+        may equal a train maze)."""
         idx = jax.random.randint(key, (n,), 0, POOL)
         return MazeContext(walls=jnp.asarray(maze_pool())[idx])
 
