@@ -103,6 +103,19 @@ def make_train(cfg: Config) -> Trainer:
 
 # --- Host driver ---------------------------------------------------------------------------
 
+def seed_sharding(num_seeds: int, devices=None) -> jax.sharding.NamedSharding:
+    """Shard the leading (seed) axis of every leaf over a 1-D mesh ("seeds") of the local
+    devices: with D devices, each runs num_seeds / D seeds; with one device this is the
+    plain single-device program. num_seeds must be a multiple of D (checked, not padded:
+    a padded seed would cost a device's worth of compute for nothing)."""
+    devices = jax.local_devices() if devices is None else devices
+    if num_seeds % len(devices):
+        raise ValueError(f"Config.num_seeds={num_seeds} is invalid: expected a multiple of the "
+                         f"{len(devices)} local devices (the seed axis is sharded over devices)")
+    mesh = jax.sharding.Mesh(np.asarray(devices), ("seeds",))
+    return jax.sharding.NamedSharding(mesh, jax.sharding.PartitionSpec("seeds"))
+
+
 def seed_keys(cfg: Config) -> jax.Array:
     """One independent key per seed of the sweep."""
     return jax.random.split(jax.random.PRNGKey(cfg.seed), cfg.num_seeds)
@@ -148,7 +161,8 @@ def train(cfg: Config, resume: bool = True, progress: bool = True,
 
     t0 = time.time()
     trainer = make_train(cfg)
-    carry = jax.jit(jax.vmap(trainer.init))(seed_keys(cfg))
+    shard = seed_sharding(cfg.num_seeds)
+    carry = jax.jit(jax.vmap(trainer.init), out_shardings=shard)(seed_keys(cfg))
     mngr = _checkpoint_manager(run_dir) if cfg.checkpoint else None
     start = 0
     if mngr is not None and resume and mngr.latest_step() is not None:
@@ -156,8 +170,10 @@ def train(cfg: Config, resume: bool = True, progress: bool = True,
         carry = mngr.restore(start, args=ocp.args.StandardRestore(carry))
     metrics = _read_metrics(run_dir, start)
 
-    dataset = jax.jit(jax.vmap(trainer.collect_data))(carry)
-    chunk_fn = jax.jit(jax.vmap(trainer.run_chunk, in_axes=(0, 0, None)), donate_argnums=0)
+    # Every seed's data is collected on the device that trains that seed.
+    dataset = jax.jit(jax.vmap(trainer.collect_data), out_shardings=shard)(carry)
+    chunk_fn = jax.jit(jax.vmap(trainer.run_chunk, in_axes=(0, 0, None)), donate_argnums=0,
+                       out_shardings=(shard, shard))
     bar = _progress(cfg, start, progress)
     with open(os.path.join(run_dir, "metrics.jsonl"), "w") as f:
         for row in metrics:
