@@ -6,6 +6,7 @@ from collections import deque
 import jax
 import jax.numpy as jnp
 import numpy as np
+import pytest
 
 import zsbfm
 from zsbfm.data import collect
@@ -130,6 +131,7 @@ def test_actor_ascends_q_on_held_out_states():
     assert float(jnp.mean(q_pi > q_rand)) > 0.9, float(jnp.mean(q_pi > q_rand))
 
 
+@pytest.mark.slow  # ~40 s: `make test-all`
 def test_continuous_rotation_fb_trains_end_to_end(tmp_path):
     """Encoder with continuous-action tokens, vMF z, actor: the whole continuous path
     (plain continuous FB is covered by the actor test above)."""

@@ -16,6 +16,7 @@ def sharded_run(devices: int, runs_dir, stop: int = 0) -> dict:
     return json.loads(out.stdout.strip().splitlines()[-1])
 
 
+@pytest.mark.slow  # four subprocesses, ~90 s: `make test-all`
 def test_four_devices_give_the_single_device_run_and_resume_on_one(tmp_path):
     one = sharded_run(1, tmp_path / "one")
     four = sharded_run(4, tmp_path / "four")
