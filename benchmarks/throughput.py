@@ -35,33 +35,21 @@ def timed(fn, *args, repeat=3):
     return best
 
 
-def env_steps(n_envs=4096, n_steps=1000):
-    env = zsbfm.make_env("fourrooms")
-    ctx = index_contexts(env.contexts("train"), jnp.arange(n_envs) % 20)
+def env_steps(name="fourrooms", n_envs=4096, n_steps=1000):
+    """vmapped env steps/s of uniformly random actions (one batched draw per step), trajectory kept."""
+    env = zsbfm.make_env(name)
+    ctx = index_contexts(env.contexts("train"), jnp.arange(n_envs) % env.n_train)
 
     @jax.jit
     def run(key):
         states = jax.vmap(env.reset)(jax.random.split(key, n_envs), ctx)
 
         def step(s, k):
-            s = jax.vmap(env.step)(s, jax.random.randint(k, (n_envs,), 0, 4))
-            return s, s.obs
-
-        return jax.lax.scan(step, states, jax.random.split(key, n_steps))[1]
-
-    return n_envs * n_steps / timed(run, jax.random.PRNGKey(0))
-
-
-def pointmass_steps(n_envs=1024, n_steps=250):
-    env = zsbfm.make_env("pointmass")
-    ctx = index_contexts(env.contexts("train"), jnp.arange(n_envs) % 30)
-
-    @jax.jit
-    def run(key):
-        states = jax.vmap(env.reset)(jax.random.split(key, n_envs), ctx)
-
-        def step(s, k):
-            s = jax.vmap(env.step)(s, jax.random.uniform(k, (n_envs, 2), minval=-1, maxval=1))
+            if env.discrete:
+                actions = jax.random.randint(k, (n_envs,), 0, env.n_actions)
+            else:
+                actions = jax.random.uniform(k, (n_envs, env.action_dim), minval=-1, maxval=1)
+            s = jax.vmap(env.step)(s, actions)
             return s, s.obs
 
         return jax.lax.scan(step, states, jax.random.split(key, n_steps))[1]
@@ -95,9 +83,9 @@ def main():
           f"{jax.default_backend()} device(s), jax {jax.__version__}\n")
     print("| measurement | value |\n|---|---|")
     n = 1024 if a.quick else 4096
-    print(f"| fourrooms env steps/s ({n} envs x 1000 steps, vmapped) | {env_steps(n):,.0f} |")
+    print(f"| fourrooms env steps/s ({n} envs x 1000 steps, vmapped) | {env_steps('fourrooms', n):,.0f} |")
     print(f"| collect 1e6 transitions (20 layouts x 500 episodes) | {collection():.3f} s |")
-    print(f"| pointmass env steps/s (1024 envs x 250 steps, 5 substeps each) | {pointmass_steps():,.0f} |")
+    print(f"| pointmass env steps/s (1024 envs x 250 steps, 5 substeps each) | {env_steps('pointmass', 1024, 250):,.0f} |")
     for algo in a.algos:
         for seeds in (1, 3):
             print(f"| {algo} CPU-preset updates/s x seeds ({seeds} seed{'s' if seeds > 1 else ''}) "
