@@ -21,16 +21,12 @@ episode, and episodes are 100 steps (gluing episodes is a known bug of the proto
 from __future__ import annotations
 
 import argparse
-import hashlib
 import json
 import os
 
 import numpy as np
 
-import zsbfm
-from zsbfm.config import Config
-
-import table  # experiments/table.py: finished-run detection
+import table  # experiments/table.py: configs, read-back and resume of finished runs
 
 SWEEPS = {
     "layouts": [dict(n_train_layouts=n, episodes_per_layout=e) for n, e in ((10, 1000), (20, 500), (30, 250), (50, 150))],
@@ -62,20 +58,13 @@ def main():
             x = pt[X[a.which]]
             if a.which == "layouts" and a.env == "pointmass":  # 1e6 transitions of 250 steps
                 pt = dict(pt, episodes_per_layout=round(1_000_000 / (pt["n_train_layouts"] * 250)))
-            cfg = Config.preset(a.env, algo, num_seeds=a.seeds, runs_dir=a.runs_dir, **pt)
-            name = f"{a.env}-{algo}-{a.which}-{x:g}"
-            if a.set:  # shortened or otherwise changed sweeps get their own directories
-                name += "-" + hashlib.sha1(" ".join(sorted(a.set)).encode()).hexdigest()[:8]
-            cfg = cfg.with_overrides(a.set + [f"name={name}"])
+            cfg = table.sweep_config(a.env, algo, "cpu", a.seeds, a.runs_dir, a.set,
+                                     name=f"{a.env}-{algo}-{a.which}-{x:g}", **pt)
             cfgs.append((algo, x, cfg))
 
     rows = []
     for i, (algo, x, cfg) in enumerate(cfgs):
-        res = table.finished_results(cfg)
-        print(f"[{i + 1}/{len(cfgs)}] {algo} {X[a.which]}={x:g}: {'read back' if res else 'training'}", flush=True)
-        if res is None:
-            table.set_aside_stale(cfg)
-            res = zsbfm.train(cfg).results
+        res = table.results_of(cfg, f"[{i + 1}/{len(cfgs)}] {algo} {X[a.which]}={x:g}")
         rows.append({"algo": algo, "x": x, "train": res["train"], "test": res["test"],
                      "wall_time_s": res["wall_time_s"]["train"] + res["wall_time_s"]["eval"]})
 

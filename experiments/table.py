@@ -40,11 +40,14 @@ NAMES = {"random": "Random", "fb": "FB", "hilp": "HILP", "lap": "Laplacian", "bf
 ORDER = ("random", "fb", "hilp", "lap", "bfb", "rfb", "oracle")
 
 
-def sweep_config(env: str, algo: str, size: str, seeds: int, runs_dir: str, overrides) -> Config:
-    """The preset with `overrides`; overridden runs get their own directory
-    (<env>-<algo>-<size>-<hash of the overrides>) so they never touch the preset's runs."""
-    cfg = Config.preset(env, algo, size, num_seeds=seeds, runs_dir=runs_dir).with_overrides(overrides)
-    if overrides and not cfg.name:
+def sweep_config(env: str, algo: str, size: str, seeds: int, runs_dir: str, overrides,
+                 name: str = "", **fields) -> Config:
+    """The preset (with `fields`) and then `overrides` (field=value strings), named `name`
+    (default <env>-<algo>-<size>). Overridden runs get "-<hash of the overrides>" appended
+    (unless the overrides name the run), so they never touch the preset's runs."""
+    cfg = Config.preset(env, algo, size, num_seeds=seeds, runs_dir=runs_dir, name=name, **fields)
+    cfg = cfg.with_overrides(overrides)
+    if overrides and cfg.name == name:
         digest = hashlib.sha1(" ".join(sorted(overrides)).encode()).hexdigest()[:8]
         cfg = dataclasses.replace(cfg, name=f"{cfg.run_name}-{digest}")
     return cfg
@@ -84,16 +87,22 @@ def set_aside_stale(cfg: Config) -> None:
         print(f"  {run_dir} held another config; moved to {run_dir}.stale-{n}", flush=True)
 
 
+def results_of(cfg: Config, label: str) -> dict:
+    """results.json of cfg's finished run, else train it (resuming, after moving a stale
+    run of another config aside). Prints one progress line starting with `label`."""
+    res = finished_results(cfg)
+    print(f"{label} ({cfg.run_name}): {'done, read back' if res is not None else 'training'}", flush=True)
+    if res is None:
+        set_aside_stale(cfg)
+        res = zsbfm.train(cfg).results
+    return res
+
+
 def run_table(env: str, algos, seeds: int, runs_dir: str, overrides, size: str = "cpu") -> dict:
     rows = {}
     for i, algo in enumerate(algos):
         cfg = sweep_config(env, algo, size, seeds, runs_dir, overrides)
-        res = finished_results(cfg)
-        status = "done, read back" if res is not None else "training"
-        print(f"[{i + 1}/{len(algos)}] {NAMES[algo]} ({cfg.run_name}): {status}", flush=True)
-        if res is None:
-            set_aside_stale(cfg)
-            res = zsbfm.train(cfg).results
+        res = results_of(cfg, f"[{i + 1}/{len(algos)}] {NAMES[algo]}")
         wt = res["wall_time_s"]
         rows[algo] = {"train": res["train"], "test": res["test"], "wall_time_s": wt["train"] + wt["eval"],
                       "resumed_from_chunk": res.get("resumed_from_chunk", 0),

@@ -17,7 +17,6 @@ ENVS = ("doors", "fourrooms", "pointmass")
 CONTINUOUS_ENVS = ("pointmass",)
 ALGOS = ("fb", "bfb", "rfb", "oracle", "hilp", "lap", "random")
 BELIEF_ALGOS = ("bfb", "rfb")          # infer h with the context encoder
-SF_ALGOS = ("hilp", "lap")             # successor features on learned state features phi
 ENCODER_MODES = ("staged", "joint")
 SIZES = ("cpu", "paper")
 TARGET_POLICIES = ("greedy", "boltzmann", "uniform")

@@ -293,12 +293,17 @@ class FBAgent:
         return jnp.zeros((batch.obs.shape[0], self.h_dim))
 
     def train_z(self, state, dataset, batch: Transitions, h: Array, key: Array) -> Array:
-        """Training z: uniform on the sqrt(d)-sphere, or with prob z_mix B(s) of a dataset state."""
+        """Training z: uniform on the sqrt(d)-sphere, or with prob z_mix the goal z of a
+        random dataset state (`goal_z`)."""
         k_states, k_prior, k_mix = jax.random.split(key, 3)
         n = batch.obs.shape[0]
-        z_states = self.backward(state.params.B, sample_states(k_states, dataset, n))
+        z_states = self.goal_z(state.params, batch.obs, sample_states(k_states, dataset, n))
         z_prior = sample_sphere(k_prior, n, self.cfg.d)
         return jax.lax.stop_gradient(mix_z(k_mix, z_prior, z_states, self.cfg.z_mix))
+
+    def goal_z(self, params: FBParams, obs: Array, goal_obs: Array) -> Array:
+        """The z that reaches goal_obs from obs: FB's B(goal) (obs unused)."""
+        return self.backward(params.B, goal_obs)
 
     def context_h(self, params: FBParams, context: Context) -> Array:
         """h inferred from one reward-free episode: FB has none."""

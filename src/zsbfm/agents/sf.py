@@ -22,6 +22,7 @@ every step; Laplacian z = sqrt(d) normalize(phi(g)). Rewards: z = least squares 
 
 from __future__ import annotations
 
+import abc
 import dataclasses
 from typing import Sequence
 
@@ -31,10 +32,10 @@ import jax.numpy as jnp
 import optax
 
 from zsbfm.agents.base import Context, Task
-from zsbfm.agents.fb import FBAgent, FBParams, mix_z, ortho_loss
+from zsbfm.agents.fb import FBAgent, FBParams, ortho_loss
 from zsbfm.data.samplers import Transitions, sample_future, sample_states
 from zsbfm.nets.mlp import MLP
-from zsbfm.ops.sphere import project_to_sphere, sample_sphere
+from zsbfm.ops.sphere import project_to_sphere
 
 Array = jax.Array
 
@@ -67,8 +68,9 @@ def lstsq_z(phi: Array, reward: Array, ridge: float = 1e-4) -> Array:
 
 
 @dataclasses.dataclass(frozen=True)
-class SFAgent(FBAgent):
-    """Successor features on learned features phi; subclasses define phi's loss and c."""
+class SFAgent(FBAgent, abc.ABC):
+    """Successor features on learned features phi; subclasses define phi's loss and c
+    (abstract: SFAgent itself cannot be built)."""
 
     phi_heads = 1
 
@@ -90,13 +92,15 @@ class SFAgent(FBAgent):
         return new.replace(B=optax.incremental_update(params.B, target.B, self.cfg.feat_tau))
 
     # -- the losses --------------------------------------------------------------------------
+    @abc.abstractmethod
     def cumulant(self, phi_params, batch: Transitions) -> Array:
-        raise NotImplementedError
+        """c(s, s') [n, d] from phi (HILP: phi(s') - phi(s); Laplacian: phi(s'))."""
 
+    @abc.abstractmethod
     def feature_loss(self, params: FBParams, target: FBParams, batch: Transitions, aux) -> tuple[Array, dict]:
-        raise NotImplementedError
+        """phi's own loss and its metrics."""
 
-    def loss(self, params: FBParams, target: FBParams, batch: Transitions, task: Task, aux=None):
+    def loss(self, params: FBParams, target: FBParams, batch: Transitions, task: Task, aux: dict):
         """SF TD loss (psi) + the feature loss (phi)."""
         psi = self.forward_sa(params.F, batch.obs, batch.action, task)        # [2, n, d]
         c = self.cumulant(jax.lax.stop_gradient(params.B), batch)            # [n, d]
@@ -161,15 +165,9 @@ class HILPAgent(SFAgent):
     def cumulant(self, phi_params, batch):
         return self.phi(phi_params, batch.next_obs) - self.phi(phi_params, batch.obs)
 
-    def train_z(self, state, dataset, batch: Transitions, h: Array, key: Array) -> Array:
-        """Uniform on the sqrt(d)-sphere, or with prob z_mix the goal direction
-        sqrt(d) normalize(phi(g) - phi(s)) of a random dataset state g: the z of goal reaching."""
-        k_states, k_prior, k_mix = jax.random.split(key, 3)
-        n = batch.obs.shape[0]
-        B = state.params.B
-        g = sample_states(k_states, dataset, n)
-        z_goal = project_to_sphere(self.phi(B, g) - self.phi(B, batch.obs))
-        return jax.lax.stop_gradient(mix_z(k_mix, sample_sphere(k_prior, n, self.cfg.d), z_goal, self.cfg.z_mix))
+    def goal_z(self, params, obs, goal_obs):
+        """HILP's goal direction sqrt(d) normalize(phi(g) - phi(s)): FB's z sampler mixes it in."""
+        return project_to_sphere(self.phi(params.B, goal_obs) - self.phi(params.B, obs))
 
     def goal_task(self, params, goal_obs, context):
         """The goal is kept embedded; `act` turns it into z = normalize(phi(g) - phi(s))."""
