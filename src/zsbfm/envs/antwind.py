@@ -1,0 +1,206 @@
+"""AntWind on MuJoCo MJX: the MuJoCo Ant running forward under a constant wind.
+
+Model: brax's `ant.xml` (the Gymnasium Ant geometry: 8 motors of gear 150, timestep
+0.01), with brax's MJX solver settings (Newton, 1 iteration, 4 line-search iterations,
+Euler damping off) and one change: the torso sphere also collides with the floor, so an
+ant that flips rests on its back instead of falling through the floor (episodes never
+terminate early, see below). One env step = `FRAME_SKIP` = 5 physics steps (dt 0.05).
+
+Wind: a constant world-frame horizontal force of `WIND_FORCE` newtons on the torso,
+written into `mjx.Data.xfrc_applied` at every step (not MuJoCo's fluid model: that needs
+non-zero fluid parameters when the model is put on device, is costlier on this CPU stack
+and is not implemented with `implicitfast`; a force is the same for every wind, so one
+compiled step serves every wind under `vmap`). The wind is the context pytree
+`WindContext(angle, force)`; 20 directions evenly spaced on the circle, angle_i = 2 pi i / 20.
+Train: the first three quadrants (angles in [0, 3 pi / 2): 15 winds); test: the last
+(5 winds). The paper used 16 / 4 with the fluid model (magnitude 4, viscosity 0.05).
+
+Observation (27): qpos[2:] (torso height, torso quaternion, 8 joint angles) and qvel (14:
+torso linear and angular velocity, 8 joint velocities); x and y are left out (the task is
+translation invariant) and so is the wind (the hidden dynamics context).
+
+Reward ("run forward" along +x, Gymnasium's Ant terms):
+    r = (x_after - x_before) / dt  +  HEALTHY * [HEALTHY_Z[0] < z < HEALTHY_Z[1]]  -  CTRL_COST * |a|^2
+`state_reward(obs)` is the action-free part as a function of the next observation (qvel_x
+for the forward velocity), the reward that zero-shot agents infer z from. Episodes are
+`episode_len` = 256 steps with no early termination (a fixed length keeps every episode of
+the dataset the same shape; an unhealthy ant simply earns no healthy bonus).
+
+Torso height is read from qpos[2], never from `Data.xpos` (see REFERENCE.md: computing it
+from brax's `pipeline_state.x.pos` costs ~100x on this CPU stack).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import functools
+import os
+from typing import Any
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+from flax import struct
+
+from zsbfm.envs.base import EnvState
+
+Array = jax.Array
+
+FRAME_SKIP = 5
+N_WINDS = 20
+WIND_FORCE = 2.0          # newtons on the torso (the ant weighs about 9 N; see the tests)
+HEALTHY = 1.0
+HEALTHY_Z = (0.3, 1.0)
+CTRL_COST = 0.5
+RESET_NOISE = 0.1
+OBS_DIM = 27
+
+
+@struct.dataclass
+class WindContext:
+    """One wind. angle: float32[] (radians); force: float32[3], the world-frame force on the torso."""
+
+    angle: Array
+    force: Array
+
+
+def wind_context(angle) -> WindContext:
+    angle = jnp.asarray(angle, jnp.float32)
+    force = WIND_FORCE * jnp.stack([jnp.cos(angle), jnp.sin(angle), jnp.zeros_like(angle)], -1)
+    return WindContext(angle=angle, force=force)
+
+
+def wind_angles(split: str) -> np.ndarray:
+    """The fixed wind directions of a split: train = [0, 3 pi / 2), test = [3 pi / 2, 2 pi)."""
+    angles = 2 * np.pi * np.arange(N_WINDS) / N_WINDS
+    train = angles < 1.5 * np.pi - 1e-6
+    return angles[train] if split == "train" else angles[~train]
+
+
+@functools.lru_cache(maxsize=None)
+def mj_model():
+    """The native MuJoCo model (mujoco.MjModel) with the settings above."""
+    import brax
+    import mujoco
+
+    path = os.path.join(os.path.dirname(brax.__file__), "envs", "assets", "ant.xml")
+    m = mujoco.MjModel.from_xml_path(path)
+    m.opt.solver = mujoco.mjtSolver.mjSOL_NEWTON
+    m.opt.iterations = 1
+    m.opt.ls_iterations = 4
+    m.opt.disableflags = m.opt.disableflags | mujoco.mjtDisableBit.mjDSBL_EULERDAMP
+    m.geom_contype[m.geom("torso_geom").id] = 1  # the torso collides with the floor
+    return m
+
+
+@functools.lru_cache(maxsize=None)
+def mjx_model():
+    from mujoco import mjx
+
+    # concrete arrays even when first called inside a jit trace (the cache outlives it)
+    with jax.ensure_compile_time_eval():
+        return mjx.put_model(mj_model())
+
+
+TORSO = 1  # body id of the torso (0 is the world)
+
+
+def observe(qpos: Array, qvel: Array) -> Array:
+    return jnp.concatenate([qpos[..., 2:], qvel], -1)
+
+
+def state_reward(obs: Array) -> Array:
+    """The action-free reward of arriving in `obs`: forward velocity + healthy bonus ([...])."""
+    z, vx = obs[..., 0], obs[..., 13]
+    healthy = (z > HEALTHY_Z[0]) & (z < HEALTHY_Z[1])
+    return vx + HEALTHY * healthy.astype(jnp.float32)
+
+
+@dataclasses.dataclass(frozen=True)
+class AntWind:
+    """AntWind (see the module docstring). Hashable: the MJX model is a module-level cache."""
+
+    episode_len: int = 256
+    # the behaviour policy of data and context episodes: an object with action(key, obs, ctx)
+    # (zsbfm.data.expert.ExpertBehaviour), or None for uniform random actions
+    behaviour: Any = dataclasses.field(default=None, compare=False, hash=False, repr=False)
+
+    name = "antwind"
+    discrete = False
+    obs_dim = OBS_DIM
+    n_actions = 0
+    action_dim = 8
+    metric = "return"
+    # bounds for input normalisation only (not enforced): z, quaternion, 8 joints, 14 velocities
+    obs_low = (0.0,) + (-1.0,) * 4 + (-1.5,) * 8 + (-10.0,) * 14
+    obs_high = (1.5,) + (1.0,) * 4 + (1.5,) * 8 + (10.0,) * 14
+
+    def __post_init__(self):
+        if self.episode_len < 1:
+            raise ValueError(f"episode_len must be >= 1, got {self.episode_len}")
+
+    @property
+    def dt(self) -> float:
+        return float(mj_model().opt.timestep) * FRAME_SKIP
+
+    # -- contexts ---------------------------------------------------------------------------
+    def contexts(self, split: str) -> WindContext:
+        if split not in ("train", "test"):
+            raise ValueError(f"split must be 'train' or 'test', got {split!r}")
+        return wind_context(wind_angles(split))
+
+    def sample_contexts(self, key: Array, n: int) -> WindContext:
+        """n winds of uniformly random direction in the train range [0, 3 pi / 2) (jittable)."""
+        return wind_context(jax.random.uniform(key, (n,), maxval=1.5 * jnp.pi))
+
+    # -- dynamics ---------------------------------------------------------------------------
+    def reset(self, key: Array, ctx: WindContext, goal: Array | None = None,
+              start: Array | None = None) -> EnvState:
+        """Standing at the origin, joints and velocities perturbed by +-RESET_NOISE (goal and
+        start are not used: AntWind's task is a reward)."""
+        from mujoco import mjx
+
+        m = mjx_model()
+        k_q, k_v = jax.random.split(key)
+        qpos0 = jnp.asarray(mj_model().qpos0, jnp.float32)
+        qpos = qpos0.at[7:].add(jax.random.uniform(k_q, (8,), minval=-RESET_NOISE, maxval=RESET_NOISE))
+        qvel = RESET_NOISE * jax.random.normal(k_v, (m.nv,))
+        data = mjx.forward(m, mjx.make_data(m).replace(qpos=qpos, qvel=qvel))
+        return EnvState(obs=observe(data.qpos, data.qvel), reward=jnp.zeros((), jnp.float32),
+                        done=jnp.zeros((), bool), t=jnp.zeros((), jnp.int32),
+                        goal=jnp.zeros(OBS_DIM, jnp.float32), has_goal=jnp.zeros((), bool),
+                        ctx=ctx, inner=data)
+
+    def physics(self, data, action: Array, force: Array):
+        """FRAME_SKIP MJX steps with ctrl = action and the wind force on the torso."""
+        from mujoco import mjx
+
+        m = mjx_model()
+        data = data.replace(ctrl=action, xfrc_applied=data.xfrc_applied.at[TORSO, :3].set(force))
+        return jax.lax.fori_loop(0, FRAME_SKIP, lambda _, d: mjx.step(m, d), data)
+
+    def step(self, state: EnvState, action: Array) -> EnvState:
+        action = jnp.clip(jnp.asarray(action, jnp.float32), -1.0, 1.0)
+        data = self.physics(state.inner, action, state.ctx.force)
+        obs = observe(data.qpos, data.qvel)
+        z = data.qpos[2]
+        healthy = (z > HEALTHY_Z[0]) & (z < HEALTHY_Z[1])
+        reward = ((data.qpos[0] - state.inner.qpos[0]) / self.dt + HEALTHY * healthy
+                  - CTRL_COST * jnp.sum(action ** 2))
+        t = state.t + 1
+        return state.replace(obs=obs, reward=reward.astype(jnp.float32), done=t >= self.episode_len,
+                             t=t, inner=data)
+
+    def random_action(self, key: Array) -> Array:
+        return jax.random.uniform(key, (8,), minval=-1.0, maxval=1.0)
+
+    def state_reward(self, obs: Array) -> Array:
+        """The reward zero-shot agents infer z from (see `state_reward`)."""
+        return state_reward(obs)
+
+    def behaviour_policy(self, ctx: WindContext):
+        """policy(key, obs) of the behaviour in wind ctx (the expert sees the wind, the
+        agents never do), or uniform random actions without an expert."""
+        if self.behaviour is None:
+            return lambda key, obs: self.random_action(key)
+        return lambda key, obs: self.behaviour.action(key, obs, ctx)
