@@ -4,6 +4,19 @@ F(s, a, w) with w the task input (z for FB, [z; h] for the belief flavours):
 two preprocessors embed (s) or (s, a) and (s, w) separately, their outputs are
 concatenated and an MLP maps them to d (continuous actions) or |A| x d (discrete).
 B(s) is an MLP to d, projected onto the sphere of radius sqrt(d).
+
+How the context h (the last h_dim entries of w) enters F (Config.h_cond), one place for
+discrete and continuous F:
+  "concat": h is an input only, beside z in pre_sw (the paper's wiring), and in pre_sa
+            too when h_in_sa.
+  "film":   as "concat", and every hidden layer of pre_sa, pre_sw and the trunk is
+            FiLM-modulated by h (Perez et al. 2018): with u the layer's pre-activation
+            [..., width] (after LayerNorm on the first layer),
+                u <- (1 + gamma(h)) * u + beta(h),   [gamma(h); beta(h)] = W h + b,
+            W: [h_dim, 2 width], b: [2 width], both initialised to zero, so F starts as
+            exactly the "concat" network (identity modulation). With a one-hot h (oracle)
+            this is a per-layout scale and shift of every hidden unit; before the ReLU it
+            can switch units on and off per context.
 """
 
 from __future__ import annotations
@@ -13,33 +26,87 @@ from typing import Sequence
 import flax.linen as nn
 import jax.numpy as jnp
 
+from zsbfm.config import H_CONDS
 from zsbfm.nets.mlp import MLP
 from zsbfm.ops.sphere import project_to_sphere
 
 
+class FiLM(nn.Module):
+    """u <- (1 + gamma(c)) * u + beta(c) with [gamma; beta] = W c + b, zero-initialised.
+
+    u: [..., width]; c: [..., c_dim] (same leading axes). Identity at initialisation.
+    """
+
+    @nn.compact
+    def __call__(self, u, c):
+        gb = nn.Dense(2 * u.shape[-1], kernel_init=nn.initializers.zeros,
+                      bias_init=nn.initializers.zeros)(c)
+        gamma, beta = jnp.split(gb, 2, axis=-1)
+        return (1.0 + gamma) * u + beta
+
+
+class FiLMMLP(nn.Module):
+    """nets.mlp.MLP's layers (Linear -> LayerNorm -> tanh, then Linear -> ReLU, then a
+    linear output) with every hidden pre-activation FiLM-modulated by c (`FiLM`).
+
+    x: [..., in]; c: [..., c_dim] -> [..., out]. At initialisation it computes exactly
+    what MLP with the same Dense/LayerNorm parameters computes.
+    """
+
+    hidden: Sequence[int]
+    out: int | None = None
+
+    @nn.compact
+    def __call__(self, x, c):
+        for i, h in enumerate(self.hidden):
+            x = nn.Dense(h)(x)
+            if i == 0:
+                x = nn.LayerNorm()(x)
+            x = FiLM(name=f"film_{i}")(x, c)
+            x = jnp.tanh(x) if i == 0 else nn.relu(x)
+        if self.out is not None:
+            x = nn.Dense(self.out)(x)
+        return x
+
+
 class ForwardNet(nn.Module):
-    """F(s, [a,] w) -> float32[..., d] (continuous) or float32[..., n_actions, d] (discrete)."""
+    """F(s, [a,] w) -> float32[..., d] (continuous) or float32[..., n_actions, d] (discrete).
+
+    obs: [..., obs_feat]; task w = [z; h]: [..., d + h_dim]; action: [..., action_dim] or None.
+    h_dim: the number of trailing entries of w that are the context h (0: no context).
+    h_in_sa: h also enters pre_sa. h_cond: "concat" or "film" (module docstring).
+    """
 
     d: int
     n_actions: int  # 0 for continuous actions
     pre_hidden: Sequence[int]
     pre_out: int
     hidden: Sequence[int]
-
-    h_in_sa: int = 0  # > 0: the last h_in_sa entries of `task` (the context h) also enter pre_sa
+    h_dim: int = 0
+    h_in_sa: bool = False
+    h_cond: str = "concat"
 
     @nn.compact
     def __call__(self, obs, task, action=None):
+        if self.h_cond not in H_CONDS:
+            raise ValueError(f"h_cond={self.h_cond!r} is invalid: expected one of {H_CONDS}")
+        h = task[..., task.shape[-1] - self.h_dim:]
         sa = obs if action is None else jnp.concatenate([obs, action], -1)
-        if self.h_in_sa:
-            sa = jnp.concatenate([sa, task[..., task.shape[-1] - self.h_in_sa:]], -1)
-        e_sa = MLP(self.pre_hidden, self.pre_out, name="pre_sa")(sa)
-        e_sw = MLP(self.pre_hidden, self.pre_out, name="pre_sw")(jnp.concatenate([obs, task], -1))
-        x = jnp.concatenate([e_sa, e_sw], -1)
+        if self.h_in_sa and self.h_dim:
+            sa = jnp.concatenate([sa, h], -1)
+        sw = jnp.concatenate([obs, task], -1)
+        out = self.d * self.n_actions if self.n_actions else self.d
+        if self.h_cond == "film" and self.h_dim:
+            e_sa = FiLMMLP(self.pre_hidden, self.pre_out, name="pre_sa")(sa, h)
+            e_sw = FiLMMLP(self.pre_hidden, self.pre_out, name="pre_sw")(sw, h)
+            y = FiLMMLP(self.hidden, out, name="trunk")(jnp.concatenate([e_sa, e_sw], -1), h)
+        else:  # plain MLPs: the parameter tree of runs saved before h_cond existed
+            e_sa = MLP(self.pre_hidden, self.pre_out, name="pre_sa")(sa)
+            e_sw = MLP(self.pre_hidden, self.pre_out, name="pre_sw")(sw)
+            y = MLP(self.hidden, out, name="trunk")(jnp.concatenate([e_sa, e_sw], -1))
         if self.n_actions:
-            out = MLP(self.hidden, self.d * self.n_actions, name="trunk")(x)
-            return out.reshape(*out.shape[:-1], self.n_actions, self.d)
-        return MLP(self.hidden, self.d, name="trunk")(x)
+            return y.reshape(*y.shape[:-1], self.n_actions, self.d)
+        return y
 
 
 class TwinForward(nn.Module):
@@ -50,14 +117,16 @@ class TwinForward(nn.Module):
     pre_hidden: Sequence[int]
     pre_out: int
     hidden: Sequence[int]
-    h_in_sa: int = 0
+    h_dim: int = 0
+    h_in_sa: bool = False
+    h_cond: str = "concat"
 
     @nn.compact
     def __call__(self, obs, task, action=None):
         twin = nn.vmap(ForwardNet, variable_axes={"params": 0}, split_rngs={"params": True},
                        in_axes=None, out_axes=0, axis_size=2)
         return twin(self.d, self.n_actions, self.pre_hidden, self.pre_out, self.hidden,
-                    self.h_in_sa, name="F")(obs, task, action)
+                    self.h_dim, self.h_in_sa, self.h_cond, name="F")(obs, task, action)
 
 
 class BackwardNet(nn.Module):

@@ -1,0 +1,106 @@
+"""How the context h conditions F (Config.h_cond): FiLM against the plain concat wiring."""
+
+import dataclasses
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+from flax.traverse_util import flatten_dict, unflatten_dict
+
+import zsbfm
+from zsbfm.agents import Task, make_agent
+from zsbfm.nets.fb import FiLM, ForwardNet
+
+D, H, OBS = 8, 3, 5
+
+
+def nets(n_actions, h_in_sa=True):
+    kw = dict(d=D, n_actions=n_actions, pre_hidden=(16,), pre_out=16, hidden=(32, 32),
+              h_dim=H, h_in_sa=h_in_sa)
+    return ForwardNet(**kw, h_cond="concat"), ForwardNet(**kw, h_cond="film")
+
+
+def inputs(n=6, action_dim=0):
+    k = jax.random.split(jax.random.PRNGKey(0), 3)
+    obs = jax.random.normal(k[0], (n, OBS))
+    z = jax.random.normal(k[1], (n, D))
+    h = jax.nn.one_hot(jnp.arange(n) % H, H)
+    a = jax.random.uniform(k[2], (n, action_dim), minval=-1, maxval=1) if action_dim else None
+    return obs, z, h, a
+
+
+def without_film(params):
+    """The FiLM network's parameters less its FiLM layers: a concat network's parameters."""
+    flat = flatten_dict(params)
+    return unflatten_dict({k: v for k, v in flat.items() if not any(p.startswith("film_") for p in k)})
+
+
+@pytest.mark.parametrize("n_actions,action_dim", [(4, 0), (0, 2)])
+def test_film_starts_as_the_identity_modulation_of_concat(n_actions, action_dim):
+    concat, film = nets(n_actions)
+    obs, z, h, a = inputs(action_dim=action_dim)
+    w = jnp.concatenate([z, h], -1)
+    p_film = film.init(jax.random.PRNGKey(1), obs, w, a)
+    p_concat = without_film(p_film)
+    # same tree as a freshly initialised concat network (the layers FiLM adds are extra)
+    assert (jax.tree_util.tree_structure(p_concat)
+            == jax.tree_util.tree_structure(concat.init(jax.random.PRNGKey(1), obs, w, a)))
+    n_film = sum(1 for k in flatten_dict(p_film) if any(p.startswith("film_") for p in k))
+    assert n_film == 2 * (1 + 1 + 2)  # kernel + bias of pre_sa, pre_sw (1 layer), trunk (2)
+    np.testing.assert_array_equal(film.apply(p_film, obs, w, a), concat.apply(p_concat, obs, w, a))
+
+
+@pytest.mark.parametrize("n_actions,action_dim", [(4, 0), (0, 2)])
+def test_film_layers_make_F_depend_on_h_multiplicatively(n_actions, action_dim):
+    """With h kept out of the inputs (h_in_sa off, and pre_sw's input weights of h zeroed),
+    F ignores h at initialisation; with the FiLM layers' weights perturbed, the FiLM layers
+    alone carry h: different h give different F at the same (s, a, z)."""
+    _, film = nets(n_actions, h_in_sa=False)
+    obs, z, h, a = inputs(action_dim=action_dim)
+    obs, z = jnp.broadcast_to(obs[:1], obs.shape), jnp.broadcast_to(z[:1], z.shape)
+    a = None if a is None else jnp.broadcast_to(a[:1], a.shape)
+    w = jnp.concatenate([z, h], -1)
+    params = film.init(jax.random.PRNGKey(1), obs, w, a)
+    flat = flatten_dict(params)
+    # zero the weights by which h enters as an input of pre_sw (its last H input rows)
+    k0 = ("params", "pre_sw", "Dense_0", "kernel")
+    flat[k0] = flat[k0].at[-H:].set(0.0)
+    out_init = film.apply(unflatten_dict(flat), obs, w, a)
+    np.testing.assert_allclose(out_init, jnp.broadcast_to(out_init[:1], out_init.shape), atol=1e-6)
+    keys = jax.random.split(jax.random.PRNGKey(2), len(flat))
+    for (k, v), kk in zip(list(flat.items()), keys):
+        if any(p.startswith("film_") for p in k):
+            flat[k] = 0.3 * jax.random.normal(kk, v.shape)
+    out = np.asarray(film.apply(unflatten_dict(flat), obs, w, a))
+    for i in range(1, H):  # rows 0..H-1 differ only in h
+        assert np.abs(out[i] - out[0]).max() > 1e-2
+
+
+def test_film_modulation_is_scale_and_shift_of_h():
+    u = jax.random.normal(jax.random.PRNGKey(0), (4, 6))
+    c = jax.nn.one_hot(jnp.array([0, 1, 2, 0]), 3)
+    layer = FiLM()
+    p = layer.init(jax.random.PRNGKey(1), u, c)
+    np.testing.assert_array_equal(layer.apply(p, u, c), u)
+    W = jax.random.normal(jax.random.PRNGKey(2), (3, 12))
+    p = {"params": {"Dense_0": {"kernel": W, "bias": jnp.zeros(12)}}}
+    gamma, beta = W[:, :6], W[:, 6:]   # one-hot c selects a row: per-context scale and shift
+    expect = (1 + gamma[jnp.array([0, 1, 2, 0])]) * u + beta[jnp.array([0, 1, 2, 0])]
+    np.testing.assert_allclose(layer.apply(p, u, c), expect, rtol=1e-6)
+
+
+def test_h_cond_is_validated_and_reaches_the_agent():
+    with pytest.raises(ValueError, match=r"Config.h_cond='gate'.*'concat', 'film'"):
+        zsbfm.Config.preset("fourrooms", "oracle", h_cond="gate")
+    cfg = zsbfm.Config.preset("fourrooms", "oracle", n_train_layouts=2, h_cond="film")
+    env = zsbfm.make_env("fourrooms", n_train=2)
+    agent = make_agent(cfg, env)
+    assert agent.F_net.h_cond == "film" and agent.F_net.h_dim == 2
+    state = agent.init(jax.random.PRNGKey(0))
+    assert any("film_0" in "/".join(k) for k in flatten_dict(state.params.F))
+    # FB (no context) is unaffected by h_cond: no FiLM layers, same params as concat
+    fb = make_agent(dataclasses.replace(cfg, algo="fb"), env)
+    assert not any("film_0" in "/".join(k) for k in flatten_dict(fb.init(jax.random.PRNGKey(0)).params.F))
+    task = Task(z=jnp.ones((1, cfg.d)), h=jnp.asarray([[0.0, 1.0]]))
+    assert agent.q_values(state.params, jnp.asarray([[1.0, 1.0]]), task).shape == (1, env.n_actions)
