@@ -11,7 +11,8 @@ import tyro
 
 def train(env: str = "fourrooms", algo: str = "fb", seeds: int = 3, size: str = "cpu",
           name: str = "", runs_dir: str = "runs", no_resume: bool = False,
-          set: tuple[str, ...] = ()) -> None:
+          set: tuple[str, ...] = (), coordinator: str = "", num_processes: int = 0,
+          process_id: int = -1) -> None:
     """Train all seeds of a preset together (vmapped), evaluate on train and test layouts.
 
     Args:
@@ -23,13 +24,43 @@ def train(env: str = "fourrooms", algo: str = "fb", seeds: int = 3, size: str = 
         runs_dir: where runs are written.
         no_resume: start afresh even if a checkpoint of this run exists.
         set: Config overrides as field=value, e.g. --set steps=2000 lr=1e-3 f_hidden=512,512.
+        coordinator: multi-process run: HOST:PORT of process 0 (default $JAX_COORDINATOR_ADDRESS);
+            run the same command on every host with its own --process-id.
+        num_processes: multi-process run: number of processes (default $JAX_NUM_PROCESSES).
+        process_id: multi-process run: this process's index, 0..num_processes-1 (default $JAX_PROCESS_ID).
     """
+    init_distributed(coordinator, num_processes, process_id)  # before anything touches a device
     from zsbfm.config import Config
     from zsbfm.train import train as run_train
 
     cfg = Config.preset(env, algo, size, num_seeds=seeds, name=name, runs_dir=runs_dir).with_overrides(set)
     run = run_train(cfg, resume=not no_resume)
-    _print_results(run)
+    import jax
+
+    if jax.process_index() == 0:
+        _print_results(run)
+
+
+def init_distributed(coordinator: str = "", num_processes: int = 0, process_id: int = -1) -> bool:
+    """jax.distributed.initialize for a multi-process run, if one is asked for (a coordinator
+    or more than one process, from the arguments or $JAX_COORDINATOR_ADDRESS,
+    $JAX_NUM_PROCESSES, $JAX_PROCESS_ID); returns whether it did. Must run before any JAX
+    computation or device query. CPU cross-process collectives use gloo over TCP."""
+    coordinator = coordinator or os.environ.get("JAX_COORDINATOR_ADDRESS", "")
+    num_processes = num_processes or int(os.environ.get("JAX_NUM_PROCESSES", "0"))
+    process_id = process_id if process_id >= 0 else int(os.environ.get("JAX_PROCESS_ID", "-1"))
+    if not coordinator and num_processes <= 1:
+        return False
+    if not coordinator or num_processes < 1 or not 0 <= process_id < num_processes:
+        raise ValueError(f"multi-process run needs --coordinator HOST:PORT, --num-processes N and "
+                         f"--process-id 0..N-1; got coordinator={coordinator!r}, "
+                         f"num_processes={num_processes}, process_id={process_id}")
+    import jax
+
+    jax.config.update("jax_cpu_collectives_implementation", "gloo")
+    jax.distributed.initialize(coordinator_address=coordinator, num_processes=num_processes,
+                               process_id=process_id)
+    return True
 
 
 def evaluate(path: str, split: str = "test") -> None:

@@ -93,6 +93,9 @@ class Config:
     chunk_steps: int = 1_000     # steps per compiled chunk (progress/metrics/checkpoint)
     checkpoint: bool = True      # write an orbax checkpoint after every chunk
 
+    # --- devices (placement only: results equal up to float summation order) --------------
+    data_parallel: int = 1       # size of the "data" mesh axis each seed's batch is split over
+
     # --- evaluation ------------------------------------------------------------------------
     eval_episode_len: int = 100
 
@@ -178,6 +181,12 @@ class Config:
         if self.context_len > self.episode_len:
             bad("context_len", self.context_len,
                 f"at most the episode length ({self.episode_len}): a context is one episode's window")
+        if not isinstance(self.data_parallel, int) or isinstance(self.data_parallel, bool) or self.data_parallel <= 0:
+            bad("data_parallel", self.data_parallel, "a positive integer (devices per seed's batch)")
+        if self.batch_size % self.data_parallel:
+            bad("data_parallel", self.data_parallel,
+                f"a divisor of batch_size={self.batch_size} (each device of the 'data' mesh axis "
+                "takes batch_size / data_parallel transitions)")
         if self.steps % self.chunk_steps:
             bad("steps", self.steps, f"a multiple of chunk_steps={self.chunk_steps}")
         if self.env == "doors" and self.n_train_layouts > 29:

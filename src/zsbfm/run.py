@@ -15,7 +15,6 @@ from __future__ import annotations
 import dataclasses
 import json
 import os
-import shutil
 from typing import Any
 
 import jax
@@ -32,21 +31,23 @@ class Run:
     metrics: list = dataclasses.field(default_factory=list)
 
     def save(self, path: str | None = None) -> str:
-        """Write config, results, metrics and an orbax checkpoint of params to `path`."""
+        """Write config, results, metrics and an orbax checkpoint of params to `path`.
+
+        Multi-process: every process calls it; process 0 writes the JSON files, orbax
+        writes params once (force=True: the primary process replaces an old one)."""
         path = os.path.abspath(path or os.path.join(self.cfg.runs_dir, self.cfg.run_name))
         os.makedirs(path, exist_ok=True)
-        with open(os.path.join(path, "config.json"), "w") as f:
-            f.write(self.cfg.to_json())
-        with open(os.path.join(path, "results.json"), "w") as f:
-            json.dump(self.results, f, indent=2)
-        with open(os.path.join(path, "metrics.jsonl"), "w") as f:
-            for row in self.metrics:
-                f.write(json.dumps(row) + "\n")
+        if jax.process_index() == 0:
+            with open(os.path.join(path, "config.json"), "w") as f:
+                f.write(self.cfg.to_json())
+            with open(os.path.join(path, "results.json"), "w") as f:
+                json.dump(self.results, f, indent=2)
+            with open(os.path.join(path, "metrics.jsonl"), "w") as f:
+                for row in self.metrics:
+                    f.write(json.dumps(row) + "\n")
         params_dir = os.path.join(path, "params")
-        if os.path.exists(params_dir):
-            shutil.rmtree(params_dir)
         ckptr = ocp.StandardCheckpointer()
-        ckptr.save(params_dir, self.params)
+        ckptr.save(params_dir, self.params, force=True)
         ckptr.wait_until_finished()
         return path
 
@@ -75,5 +76,9 @@ def load(path: str) -> Run:
     if os.path.exists(os.path.join(path, "metrics.jsonl")):
         with open(os.path.join(path, "metrics.jsonl")) as f:
             metrics = [json.loads(line) for line in f if line.strip()]
-    params = ocp.StandardCheckpointer().restore(os.path.join(path, "params"), abstract_params(cfg))
+    # onto this process's first device, whatever devices wrote it (a sharded run's params too)
+    on_device = jax.sharding.SingleDeviceSharding(jax.local_devices()[0])
+    target = jax.tree_util.tree_map(lambda x: jax.ShapeDtypeStruct(x.shape, x.dtype, sharding=on_device),
+                                    abstract_params(cfg))
+    params = ocp.StandardCheckpointer().restore(os.path.join(path, "params"), target)
     return Run(cfg=cfg, params=params, results=results, metrics=metrics)

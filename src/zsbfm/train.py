@@ -7,11 +7,19 @@ program. `train(cfg)` is the host driver: it runs the same pieces for all seeds 
 `jax.vmap`, one compiled chunk at a time, and between chunks (never inside one) shows
 progress, logs metrics and writes an orbax checkpoint, so a killed run resumes from its
 last chunk and ends exactly where an uninterrupted run would.
+
+Devices (README "Devices"): the host driver places everything on a 2-D mesh
+("seeds", "data") of all devices -- every process's in a multi-process run
+(`jax.distributed`, see zsbfm.cli) -- built by `seed_sharding`. The seed axis of every
+leaf is sharded over "seeds"; Config.data_parallel > 1 also splits each seed's batch
+over "data" (the one hook is zsbfm.data.samplers.shard_batch; `chunk_function` traces
+the chunk under the mesh so the hook sees it). With one device it is the plain program.
 """
 
 from __future__ import annotations
 
 import dataclasses
+import functools
 import json
 import os
 import shutil
@@ -27,6 +35,7 @@ from flax import struct
 from zsbfm.agents import make_agent
 from zsbfm.config import Config
 from zsbfm.data.collect import collect
+from zsbfm.data.samplers import DATA_AXIS
 from zsbfm.envs import make_env
 from zsbfm.evaluate import default_goals, evaluate_params, split_results
 from zsbfm.run import Run
@@ -103,17 +112,70 @@ def make_train(cfg: Config) -> Trainer:
 
 # --- Host driver ---------------------------------------------------------------------------
 
-def seed_sharding(num_seeds: int, devices=None) -> jax.sharding.NamedSharding:
-    """Shard the leading (seed) axis of every leaf over a 1-D mesh ("seeds") of the local
-    devices: with D devices, each runs num_seeds / D seeds; with one device this is the
-    plain single-device program. num_seeds must be a multiple of D (checked, not padded:
-    a padded seed would cost a device's worth of compute for nothing)."""
-    devices = jax.local_devices() if devices is None else devices
-    if num_seeds % len(devices):
+def seed_sharding(num_seeds: int, devices=None, data_parallel: int = 1) -> jax.sharding.NamedSharding:
+    """Shard the leading (seed) axis of every leaf over the "seeds" axis of a 2-D mesh
+    ("seeds", "data") of `devices` (default jax.devices(): all processes' devices in a
+    multi-process run, the local ones otherwise), shape (D / data_parallel, data_parallel).
+
+    Each "seeds" row trains num_seeds / (D / data_parallel) seeds; leaves are replicated
+    over "data" (parameters, optimiser state, the dataset), and only the batch sampled in
+    each update is split over it (samplers.shard_batch). Devices are taken in jax.devices()
+    order, so a "data" row is consecutive devices: on one host when data_parallel divides
+    the local device count. With one device this is the plain single-device program.
+    Divisibility is checked here, before anything compiles (no padding: a padded seed
+    would cost a device's worth of compute for nothing)."""
+    devices = jax.devices() if devices is None else devices
+    n = len(devices)
+    if n % data_parallel:
+        raise ValueError(f"Config.data_parallel={data_parallel} is invalid: expected a divisor of the "
+                         f"{n} devices (the mesh is (devices / data_parallel) seeds x data_parallel)")
+    n_seeds_axis = n // data_parallel
+    if num_seeds % n_seeds_axis:
         raise ValueError(f"Config.num_seeds={num_seeds} is invalid: expected a multiple of the "
-                         f"{len(devices)} local devices (the seed axis is sharded over devices)")
-    mesh = jax.sharding.Mesh(np.asarray(devices), ("seeds",))
+                         f"{n_seeds_axis} devices of the 'seeds' mesh axis ({n} devices / data_parallel="
+                         f"{data_parallel}; the seed axis is sharded over devices)")
+    mesh = jax.sharding.Mesh(np.asarray(devices).reshape(n_seeds_axis, data_parallel), ("seeds", DATA_AXIS))
     return jax.sharding.NamedSharding(mesh, jax.sharding.PartitionSpec("seeds"))
+
+
+def replicated(shard: jax.sharding.NamedSharding) -> jax.sharding.NamedSharding:
+    """Every device of shard's mesh holds the whole array (small outputs every process reads)."""
+    return jax.sharding.NamedSharding(shard.mesh, jax.sharding.PartitionSpec())
+
+
+def on_mesh(fn: Callable, mesh: jax.sharding.Mesh) -> Callable:
+    """fn traced with `mesh` as the context (abstract) mesh, so that the data-parallel hook
+    (samplers.shard_batch) sees its "data" axis; wrap a function before jax.jit."""
+    @functools.wraps(fn)  # keeps fn's name for the compiled module (jit_run_chunk)
+    def traced_on_mesh(*args):
+        with jax.sharding.use_abstract_mesh(mesh.abstract_mesh):
+            return fn(*args)
+    return traced_on_mesh
+
+
+def chunk_function(trainer: Trainer, shard: jax.sharding.NamedSharding) -> Callable:
+    """The compiled chunk zsbfm.train runs: (carry, dataset, np.int32 chunk) -> (carry, metrics).
+
+    vmap over seeds with spmd_axis_name="seeds", so the batch constraint inside becomes
+    P("seeds", "data") rather than replicating the seed axis; carry donated and kept on
+    `shard`; the chunk-mean metrics replicated (tiny; every process can read them)."""
+    per_seed = jax.vmap(trainer.run_chunk, in_axes=(0, 0, None), spmd_axis_name="seeds")
+    return jax.jit(on_mesh(per_seed, shard.mesh), donate_argnums=0, out_shardings=(shard, replicated(shard)))
+
+
+def global_array(x, shard: jax.sharding.NamedSharding) -> jax.Array:
+    """A host array (the same on every process) placed on `shard`; each process supplies
+    its own devices' pieces (works with one process or many)."""
+    x = np.asarray(x)
+    return jax.make_array_from_callback(x.shape, shard, lambda idx: x[idx])
+
+
+def _barrier(name: str) -> None:
+    """Wait for every process (multi-process runs); nothing with one process."""
+    if jax.process_count() > 1:
+        from jax.experimental import multihost_utils
+
+        multihost_utils.sync_global_devices(name)
 
 
 def seed_keys(cfg: Config) -> jax.Array:
@@ -140,29 +202,41 @@ def train(cfg: Config, resume: bool = True, progress: bool = True,
     """Train every seed of `cfg` together (jax.vmap), evaluate, save and return a `Run`.
 
     resume:   continue from the newest checkpoint in runs/<name>/ if it was written by
-              the same config (a different config there is an error, not an overwrite);
+              the same config (a different config there is an error, not an overwrite;
+              data_parallel may differ: it is placement), on any number of devices;
               resume=False deletes runs/<name>/ and starts over.
     callback: called on the host after each chunk as callback(chunk, metrics_row).
+
+    Multi-process (after jax.distributed.initialize; zsbfm.cli does it): every process
+    calls this with the same cfg; runs_dir must be on a filesystem all processes share.
+    Each process collects and trains its own devices' seeds; orbax writes the checkpoints
+    together; process 0 alone writes config.json, metrics.jsonl, results.json and plots;
+    the returned Run's params are replicated on every process.
     """
     run_dir = os.path.abspath(os.path.join(cfg.runs_dir, cfg.run_name))
     cfg_path = os.path.join(run_dir, "config.json")
+    primary = jax.process_index() == 0  # writes the run's files (multi-process runs)
     if os.path.exists(cfg_path):
-        with open(cfg_path) as f:
-            old = Config.from_dict(json.load(f))
+        with open(cfg_path) as f:  # data_parallel is placement: a run may resume with another
+            old = dataclasses.replace(Config.from_dict(json.load(f)), data_parallel=cfg.data_parallel)
         if not resume:
-            shutil.rmtree(run_dir)
+            _barrier("zsbfm: config read")
+            if primary:
+                shutil.rmtree(run_dir)
         elif old != cfg:
             diff = {k: (v, getattr(cfg, k)) for k, v in old.to_dict().items() if getattr(cfg, k) != v}
             raise ValueError(f"{run_dir} holds a run with a different config {diff}; choose another "
                              "name (Config.name / --name), or start over (resume=False / --no-resume)")
     os.makedirs(run_dir, exist_ok=True)
-    with open(cfg_path, "w") as f:
-        f.write(cfg.to_json())
+    if primary:
+        with open(cfg_path, "w") as f:
+            f.write(cfg.to_json())
+    _barrier("zsbfm: run directory ready")
 
     t0 = time.time()
     trainer = make_train(cfg)
-    shard = seed_sharding(cfg.num_seeds)
-    carry = jax.jit(jax.vmap(trainer.init), out_shardings=shard)(seed_keys(cfg))
+    shard = seed_sharding(cfg.num_seeds, data_parallel=cfg.data_parallel)
+    carry = jax.jit(jax.vmap(trainer.init), out_shardings=shard)(global_array(seed_keys(cfg), shard))
     mngr = _checkpoint_manager(run_dir) if cfg.checkpoint else None
     start = 0
     if mngr is not None and resume and mngr.latest_step() is not None:
@@ -172,15 +246,14 @@ def train(cfg: Config, resume: bool = True, progress: bool = True,
 
     # Every seed's data is collected on the device that trains that seed.
     dataset = jax.jit(jax.vmap(trainer.collect_data), out_shardings=shard)(carry)
-    chunk_fn = jax.jit(jax.vmap(trainer.run_chunk, in_axes=(0, 0, None)), donate_argnums=0,
-                       out_shardings=(shard, shard))
-    bar = _progress(cfg, start, progress)
-    with open(os.path.join(run_dir, "metrics.jsonl"), "w") as f:
+    chunk_fn = chunk_function(trainer, shard)
+    bar = _progress(cfg, start, progress and primary)
+    with open(os.path.join(run_dir, "metrics.jsonl") if primary else os.devnull, "w") as f:
         for row in metrics:
             f.write(json.dumps(row) + "\n")
         for chunk in range(start, cfg.num_chunks):
             t_chunk = time.time()
-            carry, m = chunk_fn(carry, dataset, jnp.int32(chunk))
+            carry, m = chunk_fn(carry, dataset, np.int32(chunk))
             m = jax.device_get(m)  # the one host transfer per chunk
             row = {"chunk": chunk + 1, "step": (chunk + 1) * cfg.chunk_steps,
                    "seconds": round(time.time() - t_chunk, 3),
@@ -202,15 +275,19 @@ def train(cfg: Config, resume: bool = True, progress: bool = True,
     train_seconds = time.time() - t0
 
     t_eval = time.time()
-    success = jax.jit(jax.vmap(trainer.evaluate))(carry)
+    success = jax.jit(jax.vmap(trainer.evaluate), out_shardings=replicated(shard))(carry)
     success = jax.device_get(success)
     results = {split: split_results(success[split])["success"] for split in ("train", "test")}
     results["detail"] = {split: split_results(success[split]) for split in ("train", "test")}
     results["wall_time_s"] = {"train": round(train_seconds, 2), "eval": round(time.time() - t_eval, 2)}
     results["resumed_from_chunk"] = start
     params = trainer.agent.eval_params(carry.agent_state)
+    if jax.process_count() > 1:  # each process holds only its seeds: gather them everywhere
+        params = jax.jit(lambda p: p, out_shardings=replicated(shard))(params)
     run = Run(cfg=cfg, params=params, results=results, metrics=metrics)
     run.save(run_dir)
+    if not primary:
+        return run
     try:
         from zsbfm.plots import plot_run
 

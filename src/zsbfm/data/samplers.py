@@ -29,8 +29,33 @@ def sample_transitions(key: jax.Array, ds: Dataset, n: int) -> Transitions:
     k_e, k_t = jax.random.split(key)
     ep = jax.random.randint(k_e, (n,), 0, ds.num_episodes)
     t = jax.random.randint(k_t, (n,), 0, ds.episode_len)
-    return Transitions(obs=ds.obs[ep, t], action=ds.action[ep, t], next_obs=ds.obs[ep, t + 1],
-                       episode=ep, t=t)
+    return shard_batch(Transitions(obs=ds.obs[ep, t], action=ds.action[ep, t], next_obs=ds.obs[ep, t + 1],
+                                   episode=ep, t=t))
+
+
+DATA_AXIS = "data"  # the mesh axis a data-parallel batch is split over (Config.data_parallel)
+
+
+def shard_batch(batch):
+    """The data-parallel hook: split the batch (leading axis of every leaf) over the "data"
+    axis of the mesh the program is traced under (zsbfm.train.on_mesh); a no-op without
+    one or when it has size 1 (Config.data_parallel = 1: the program is unchanged).
+
+    Only a sharding constraint: the maths is the global batch's. GSPMD partitions
+    everything downstream (gathers, forward passes, the n x n FB matrix, whose B operand
+    it all-gathers) and turns the batch reductions of the loss -- and so of its gradient
+    with respect to the parameters, which are replicated over "data" -- into all-reduces.
+    Each device does 1/data_parallel of the per-transition work and the update equals
+    the single-device one on the same batch up to float summation order. (Averaging
+    per-device losses instead, as pmap-style data parallelism does, would change the FB
+    and orthonormality estimators: their off-diagonal terms would only pair transitions
+    that landed on the same device.) The random draws do not depend on the sharding
+    (jax_threefry_partitionable, the default)."""
+    size = jax.sharding.get_abstract_mesh().shape.get(DATA_AXIS, 1)
+    if size == 1:
+        return batch
+    spec = jax.sharding.PartitionSpec(DATA_AXIS)
+    return jax.tree_util.tree_map(lambda x: jax.lax.with_sharding_constraint(x, spec), batch)
 
 
 def sample_states(key: jax.Array, ds: Dataset, n: int) -> jax.Array:
@@ -38,7 +63,7 @@ def sample_states(key: jax.Array, ds: Dataset, n: int) -> jax.Array:
     k_e, k_t = jax.random.split(key)
     ep = jax.random.randint(k_e, (n,), 0, ds.num_episodes)
     t = jax.random.randint(k_t, (n,), 1, ds.episode_len + 1)
-    return ds.obs[ep, t]
+    return shard_batch(ds.obs[ep, t])  # one per batch row (training z, goals): split like the batch
 
 
 def geometric_offsets(key: jax.Array, shape, gamma: float) -> jax.Array:
