@@ -12,12 +12,12 @@ STAMP  := $(VENV)/.installed
 .PHONY: train test test-all bench data table clean help
 
 help:
-	@echo "make train [ENV=fourrooms|doors] [ALGO=fb] [SEEDS=3] [SIZE=cpu|paper] [ARGS='--set steps=2000']"
+	@echo "make train [ENV=fourrooms|doors|pointmass|antwind] [ALGO=fb] [SEEDS=3] [SIZE=cpu|paper] [ARGS='--set steps=2000']"
 	@echo "make test        fast test suite (CPU, minutes)"
 	@echo "make test-all    including slow tests"
 	@echo "make bench       throughput benchmarks"
-	@echo "make data        collect and save the ENV dataset"
-	@echo "make table [ENV=fourrooms|doors] [SEEDS=3] [ARGS='--set steps=2000']  every method -> results/ENV.{json,md,png}"
+	@echo "make data        collect and save the ENV dataset (antwind: train the wind-aware expert, record, cache)"
+	@echo "make table [ENV=fourrooms|doors|pointmass|antwind] [SEEDS=3] [ARGS='--set steps=2000']  every method -> results/ENV.{json,md,png}"
 
 $(STAMP): pyproject.toml
 	test -x $(PY) || $(PYTHON) -m venv $(VENV)

@@ -5,6 +5,8 @@
 
 Measures, after one warm-up call (compile excluded):
   - gridworld env steps/s: 4096 vmapped fourrooms envs x 1000 random steps;
+  - AntWind env steps/s: MJX, vmapped envs x 100 random steps, beside native MuJoCo (C,
+    one thread, the same model and wind force) on the same actions;
   - dataset collection: 1e6 transitions (20 layouts x 500 episodes x 100 steps);
   - update steps/s of each algo's CPU preset, 1 seed and 3 vmapped seeds.
 """
@@ -20,7 +22,7 @@ import jax.numpy as jnp
 
 import zsbfm
 from zsbfm.data import collect
-from zsbfm.envs import index_contexts
+from zsbfm.envs import index_contexts, num_contexts
 from zsbfm.train import make_train, seed_keys
 
 
@@ -38,7 +40,7 @@ def timed(fn, *args, repeat=3):
 def env_steps(name="fourrooms", n_envs=4096, n_steps=1000):
     """vmapped env steps/s of uniformly random actions (one batched draw per step), trajectory kept."""
     env = zsbfm.make_env(name)
-    ctx = index_contexts(env.contexts("train"), jnp.arange(n_envs) % env.n_train)
+    ctx = index_contexts(env.contexts("train"), jnp.arange(n_envs) % num_contexts(env.contexts("train")))
 
     @jax.jit
     def run(key):
@@ -55,6 +57,25 @@ def env_steps(name="fourrooms", n_envs=4096, n_steps=1000):
         return jax.lax.scan(step, states, jax.random.split(key, n_steps))[1]
 
     return n_envs * n_steps / timed(run, jax.random.PRNGKey(0))
+
+
+def native_antwind_steps(n_steps=2000):
+    """Native MuJoCo (C) env steps/s of the AntWind model, one thread, random actions."""
+    import mujoco
+    import numpy as np
+
+    from zsbfm.envs.antwind import FRAME_SKIP, TORSO, WIND_FORCE, mj_model
+
+    m = mj_model()
+    d = mujoco.MjData(m)
+    actions = np.random.default_rng(0).uniform(-1, 1, (n_steps, m.nu))
+    t = time.perf_counter()
+    for a in actions:
+        d.ctrl[:] = a
+        d.xfrc_applied[TORSO, :3] = (WIND_FORCE, 0.0, 0.0)
+        for _ in range(FRAME_SKIP):
+            mujoco.mj_step(m, d)
+    return n_steps / (time.perf_counter() - t)
 
 
 def collection(layouts=20, episodes=500):
@@ -86,6 +107,10 @@ def main():
     print(f"| fourrooms env steps/s ({n} envs x 1000 steps, vmapped) | {env_steps('fourrooms', n):,.0f} |")
     print(f"| collect 1e6 transitions (20 layouts x 500 episodes) | {collection():.3f} s |")
     print(f"| pointmass env steps/s (1024 envs x 250 steps, 5 substeps each) | {env_steps('pointmass', 1024, 250):,.0f} |")
+    for n_ant in ((128,) if a.quick else (128, 1024)):
+        print(f"| antwind MJX env steps/s ({n_ant} envs x 100 steps, 5 physics steps each) "
+              f"| {env_steps('antwind', n_ant, 100):,.0f} |", flush=True)
+    print(f"| antwind native MuJoCo env steps/s (1 thread, 5 physics steps each) | {native_antwind_steps():,.0f} |")
     for algo in a.algos:
         for seeds in (1, 3):
             print(f"| {algo} CPU-preset updates/s x seeds ({seeds} seed{'s' if seeds > 1 else ''}) "

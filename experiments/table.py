@@ -34,7 +34,11 @@ PAPER = {
                   "bfb": (0.70, 0.40), "rfb": (0.85, 0.61)},
     "pointmass": {"random": (0.00, 0.03), "fb": (0.20, 0.10), "hilp": (0.45, 0.25), "lap": (0.15, 0.10),
                   "bfb": (0.76, 0.45), "rfb": (0.88, 0.55)},
+    # AntWind: episode returns (256 steps)
+    "antwind": {"random": (-190, 250), "fb": (390, 250), "hilp": (410, 410), "lap": (340, 290),
+                "bfb": (680, 550), "rfb": (740, 640)},
 }
+RETURN_ENVS = ("antwind",)  # scored by episode return, not success rate
 NAMES = {"random": "Random", "fb": "FB", "hilp": "HILP", "lap": "Laplacian", "bfb": "Belief-FB",
          "rfb": "Rotation-FB", "oracle": "Oracle FB (true layout id)"}
 ORDER = ("random", "fb", "hilp", "lap", "bfb", "rfb", "oracle")
@@ -112,15 +116,16 @@ def run_table(env: str, algos, seeds: int, runs_dir: str, overrides, size: str =
 
 def markdown(env: str, rows: dict, seeds: int, size: str) -> str:
     paper = PAPER.get(env, {})
-    lines = [f"| {env} ({seeds} seeds, {size} preset) | train success | test success | paper train / test "
+    metric, fmt = ("return", ".0f") if env in RETURN_ENVS else ("success", ".2f")
+    lines = [f"| {env} ({seeds} seeds, {size} preset) | train {metric} | test {metric} | paper train / test "
              f"| wall time (train + eval) |", "|---|---|---|---|---|"]
     for algo, row in rows.items():
         tr, te = np.asarray(row["train"]), np.asarray(row["test"])
         pp = paper.get(algo)
         note = " (resumed)" if row["resumed_from_chunk"] else ""
-        test = "n/a (h = 0)" if algo == "oracle" else f"{te.mean():.2f} +- {te.std():.2f}"
-        lines.append(f"| {NAMES[algo]} | {tr.mean():.2f} +- {tr.std():.2f} | {test} | "
-                     f"{f'{pp[0]:.2f} / {pp[1]:.2f}' if pp else 'n/a'} | {row['wall_time_s']:.0f} s{note} |")
+        test = "n/a (h = 0)" if algo == "oracle" else f"{te.mean():{fmt}} +- {te.std():{fmt}}"
+        lines.append(f"| {NAMES[algo]} | {tr.mean():{fmt}} +- {tr.std():{fmt}} | {test} | "
+                     f"{f'{pp[0]:{fmt}} / {pp[1]:{fmt}}' if pp else 'n/a'} | {row['wall_time_s']:.0f} s{note} |")
     total = sum(r["wall_time_s"] for r in rows.values())
     lines.append(f"\nTotal wall time {total / 60:.1f} min.")
     if "oracle" in rows:
@@ -145,9 +150,10 @@ def bar_chart(env: str, rows: dict, path: str) -> None:
         paper = [PAPER.get(env, {}).get(a, (np.nan, np.nan))[k] for a in algos]
         ax.scatter(x, paper, marker="_", s=400, color="k", zorder=3, label="paper")
         ax.set_xticks(x, [NAMES[a].split(" ")[0] for a in algos], rotation=20)
-        ax.set_title(f"{env}: {split} layouts")
-        ax.set_ylim(0, 1)
-    axes[0].set_ylabel("success rate")
+        ax.set_title(f"{env}: {split} {'winds' if env in RETURN_ENVS else 'layouts'}")
+        if env not in RETURN_ENVS:
+            ax.set_ylim(0, 1)
+    axes[0].set_ylabel("episode return" if env in RETURN_ENVS else "success rate")
     axes[0].legend(loc="upper left")
     fig.tight_layout()
     fig.savefig(path, dpi=120)
@@ -156,7 +162,7 @@ def bar_chart(env: str, rows: dict, path: str) -> None:
 
 def main():
     p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    p.add_argument("--env", default="fourrooms", choices=["fourrooms", "doors", "pointmass"])
+    p.add_argument("--env", default="fourrooms", choices=["fourrooms", "doors", "pointmass", "antwind"])
     p.add_argument("--algos", nargs="+", default=list(ORDER), choices=list(ORDER))
     p.add_argument("--seeds", type=int, default=3)
     p.add_argument("--size", default="cpu", choices=["cpu", "paper"])

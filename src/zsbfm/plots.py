@@ -42,7 +42,7 @@ def plot_metrics(run, path):
 
 
 def plot_success(run, path):
-    """Mean +- std over seeds of the success rate on train and test layouts."""
+    """Mean +- std over seeds of the success rate (or return) on train and test contexts."""
     plt = _plt()
     splits = ("train", "test")
     vals = [np.asarray(run.results[s]) for s in splits]
@@ -51,8 +51,11 @@ def plot_success(run, path):
            color=["tab:blue", "tab:orange"])
     for i, v in enumerate(vals):
         ax.scatter([i] * len(v), v, color="k", s=10, zorder=3)
-    ax.set_ylim(0, 1)
-    ax.set_ylabel("success rate")
+    if run.results.get("metric", "success") == "return":
+        ax.set_ylabel("episode return")
+    else:
+        ax.set_ylim(0, 1)
+        ax.set_ylabel("success rate")
     ax.set_title(f"{run.cfg.env} {run.cfg.algo} ({len(vals[0])} seeds)", fontsize=9)
     fig.tight_layout()
     fig.savefig(path, dpi=100)

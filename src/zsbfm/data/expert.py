@@ -1,18 +1,23 @@
-"""Wind-aware expert data for AntWind: brax's SAC on our MJX env, then noisy rollouts.
+"""Wind-aware expert data for AntWind: a TD3 expert trained on device, then noisy rollouts.
 
-    policy_params = train_expert(env, settings)     # SAC, the true wind as an input
-    dataset       = expert_dataset(env, params, key, winds, episodes, noise)
-    dataset       = load_or_make_antwind_data(cfg)  # both, cached under datasets/antwind/
+    params = train_expert(env, ExpertSettings())          # TD3, the true wind as an input
+    env    = antwind_env(cfg)                             # AntWind + the expert as behaviour
+    data   = load_or_collect_dataset(cfg, env)            # recorded once, cached on disk
 
-The expert is one SAC agent (brax.training.agents.sac, a well-kept implementation) for
-every train wind: its observation is the AntWind observation with (cos, sin) of the wind
-angle appended, and each of its vmapped envs runs in a uniformly drawn train wind. The
-dataset is then recorded on device, vmapped over winds x episodes: the expert's
-deterministic action plus Gaussian exploration noise (sigma `expert_noise`), clipped to
-[-1, 1]. The same policy gives the reward-free context episodes at evaluation time
-(`ExpertBehaviour`): one episode of the expert under the (train or held-out) wind, whose
-actions the agents see as data but never the wind itself. `data_policy="random"` records
-uniformly random actions instead (and random context episodes).
+The expert is one TD3 agent (Fujimoto et al. 2018) for every train wind: its input is the
+AntWind observation (normalised) with (cos, sin) of the wind angle appended, and each of
+its `num_envs` vmapped envs runs in a uniformly drawn train wind, redrawn every episode.
+Env stepping, the on-device replay buffer and the updates are one `lax.scan` per chunk
+(progress between chunks). Why not brax's SAC: brax 0.14's trainer calls
+`jax.device_put_replicated`, which JAX 0.10 removed, so it does not run here.
+
+The dataset is then recorded on device with `zsbfm.data.collect`, vmapped over the 15
+train winds x episodes: the expert's action plus Gaussian noise (sigma `expert_noise`),
+clipped to [-1, 1]. The same noisy expert gives the reward-free context episodes at
+evaluation time, in train and held-out winds: the agents see its transitions, never the
+wind. `data_policy="random"` records uniformly random actions instead (and random context
+episodes). Both the expert's params and the dataset are cached under
+`<data_dir>/antwind/` by a hash of everything they depend on (`make data ENV=antwind`).
 """
 
 from __future__ import annotations
