@@ -64,7 +64,8 @@ def init_distributed(coordinator: str = "", num_processes: int = 0, process_id: 
 
 
 def evaluate(path: str, split: str = "test") -> None:
-    """Evaluate a saved run on a split (train | test) and print success per seed."""
+    """Evaluate a saved run on a split (train | test) and print its score per seed (success
+    rate, or episode return for antwind)."""
     import numpy as np
 
     from zsbfm.evaluate import evaluate as run_eval
@@ -72,7 +73,8 @@ def evaluate(path: str, split: str = "test") -> None:
 
     run = load(path)
     success = np.asarray(run_eval(run, split=split))
-    print(json.dumps({"split": split, "success_per_seed": success.mean((1, 2)).round(4).tolist(),
+    metric = "return" if run.cfg.env == "antwind" else "success"
+    print(json.dumps({"split": split, f"{metric}_per_seed": success.mean((1, 2)).round(4).tolist(),
                       "mean": round(float(success.mean()), 4)}))
 
 
@@ -80,10 +82,23 @@ def collect(env: str = "fourrooms", n_train: int = 0, episodes_per_layout: int =
             seed: int = 0, out: str = "") -> None:
     """Collect the behaviour-policy dataset on the train layouts and save it as .npz.
 
-    n_train / episodes_per_layout: 0 takes the environment's CPU preset."""
+    n_train / episodes_per_layout: 0 takes the environment's CPU preset. antwind: trains
+    the wind-aware expert first (cached), then records and caches the dataset under
+    datasets/antwind/, where `train --env antwind` reads it (out is ignored)."""
     import time
 
     import jax
+
+    if env == "antwind":
+        from zsbfm.config import Config
+        from zsbfm.data.expert import antwind_env, load_or_collect_dataset
+
+        cfg = Config.preset("antwind", seed=seed, **({"episodes_per_layout": episodes_per_layout}
+                                                     if episodes_per_layout else {}))
+        t = time.time()
+        ds = load_or_collect_dataset(cfg, antwind_env(cfg))
+        print(f"antwind dataset: {ds.num_transitions} transitions ready in {time.time() - t:.0f}s")
+        return
 
     from zsbfm.data import collect as collect_data
     from zsbfm.data import save_dataset
@@ -109,7 +124,7 @@ def _print_results(run) -> None:
     r = run.results
     for split in ("train", "test"):
         v = np.asarray(r[split])
-        print(f"{split:5s} success: {v.mean():.3f} +- {v.std():.3f}  per seed {np.round(v, 3).tolist()}")
+        print(f"{split:5s} {r.get('metric', 'success')}: {v.mean():.3f} +- {v.std():.3f}  per seed {np.round(v, 3).tolist()}")
     print(f"wall time: {r['wall_time_s']}  ->  {os.path.join(run.cfg.runs_dir, run.cfg.run_name)}")
 
 

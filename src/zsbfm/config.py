@@ -13,15 +13,17 @@ import dataclasses
 import json
 from typing import Any
 
-ENVS = ("doors", "fourrooms", "pointmass")
-CONTINUOUS_ENVS = ("pointmass",)
+ENVS = ("doors", "fourrooms", "pointmass", "antwind")
+CONTINUOUS_ENVS = ("pointmass", "antwind")
 ALGOS = ("fb", "bfb", "rfb", "oracle", "hilp", "lap", "random")
 BELIEF_ALGOS = ("bfb", "rfb")          # infer h with the context encoder
 ENCODER_MODES = ("staged", "joint")
 SIZES = ("cpu", "paper")
 TARGET_POLICIES = ("greedy", "boltzmann", "uniform")
 H_CONDS = ("concat", "film")           # how the context h enters F (nets/fb.py)
-EPISODE_LEN = {"doors": 100, "fourrooms": 100, "pointmass": 250}
+EPISODE_LEN = {"doors": 100, "fourrooms": 100, "pointmass": 250, "antwind": 256}
+DATA_POLICIES = ("expert", "random")
+ANTWIND_TRAIN_WINDS = 15               # 20 directions; the first three quadrants train
 
 
 @dataclasses.dataclass(frozen=True)
@@ -40,6 +42,11 @@ class Config:
     episodes_per_layout: int = 500
     episode_len: int = 100      # must equal the environment's episode length
     context_len: int = 100      # transitions per context window (belief methods)
+    # antwind only: the behaviour data (zsbfm.data.expert), cached under data_dir/antwind/
+    data_policy: str = "expert"  # "expert": the noisy wind-aware TD3 expert | "random"
+    expert_steps: int = 300_000  # env steps of TD3 training for the expert
+    expert_noise: float = 0.2    # std of the Gaussian noise on the expert's actions in the data
+    data_dir: str = "datasets"
 
     # --- FB -----------------------------------------------------------------------------
     obs_encoding: str = "onehot"              # network input: "onehot" (grid coords) | "raw"
@@ -119,6 +126,15 @@ class Config:
             bad("encoder_mode", self.encoder_mode, f"one of {ENCODER_MODES}")
         if self.h_cond not in H_CONDS:
             bad("h_cond", self.h_cond, f"one of {H_CONDS}")
+        if self.data_policy not in DATA_POLICIES:
+            bad("data_policy", self.data_policy, f"one of {DATA_POLICIES}")
+        if not isinstance(self.expert_steps, int) or self.expert_steps <= 0:
+            bad("expert_steps", self.expert_steps, "a positive integer")
+        if self.expert_noise < 0:
+            bad("expert_noise", self.expert_noise, "expert_noise >= 0")
+        if self.env == "antwind" and self.n_train_layouts != ANTWIND_TRAIN_WINDS:
+            bad("n_train_layouts", self.n_train_layouts,
+                f"{ANTWIND_TRAIN_WINDS} for antwind (the fixed train winds: 20 directions, first three quadrants)")
         if self.target_policy not in TARGET_POLICIES:
             bad("target_policy", self.target_policy, f"one of {TARGET_POLICIES}")
         for f in ("num_seeds", "n_train_layouts", "episodes_per_layout", "episode_len",
@@ -296,6 +312,18 @@ _PRESETS: dict[tuple[str, str], dict[str, Any]] = {
     # 30 train mazes x 133 episodes x 250 steps = 1e6 transitions; contexts are 100-step windows
     ("pointmass", "cpu"): dict(n_train_layouts=30, episodes_per_layout=133, episode_len=250,
                                eval_episode_len=250, context_len=100, obs_encoding="raw", gamma=0.98),
+    # 15 train winds x 100 expert episodes x 256 steps = 384k transitions; contexts are
+    # 100-step windows; returns over 256-step episodes
+    ("antwind", "cpu"): dict(n_train_layouts=15, episodes_per_layout=100, episode_len=256,
+                             eval_episode_len=256, context_len=100, obs_encoding="raw",
+                             gamma=0.98, steps=10_000),
+    ("antwind", "paper"): dict(n_train_layouts=15, episodes_per_layout=1000, episode_len=256,
+                               eval_episode_len=256, context_len=100, obs_encoding="raw",
+                               expert_steps=3_000_000, d=150, f_pre_hidden=(1024,), f_pre_out=512,
+                               f_hidden=(1024, 1024), b_hidden=(256, 256, 256),
+                               actor_hidden=(1024, 1024), lr=1e-4, batch_size=1024, gamma=0.99,
+                               tau=0.05, steps=1_000_000, chunk_steps=10_000, kappa=100.0,
+                               feat_hidden=(512, 512)),
     ("pointmass", "paper"): dict(n_train_layouts=30, episodes_per_layout=133, episode_len=250,
                                  eval_episode_len=250, context_len=100, obs_encoding="raw",
                                  d=150, f_pre_hidden=(1024,), f_pre_out=512, f_hidden=(1024, 1024),

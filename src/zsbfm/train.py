@@ -6,7 +6,9 @@ updates -> evaluate), so `jax.jit(jax.vmap(trainer.train))(keys)` sweeps seeds i
 program. `train(cfg)` is the host driver: it runs the same pieces for all seeds with
 `jax.vmap`, one compiled chunk at a time, and between chunks (never inside one) shows
 progress, logs metrics and writes an orbax checkpoint, so a killed run resumes from its
-last chunk and ends exactly where an uninterrupted run would.
+last chunk and ends exactly where an uninterrupted run would. AntWind's host driver reads
+one dataset for all seeds from the on-disk cache (zsbfm.data.expert) instead of recording
+per seed: MJX rollouts are the costly part there.
 
 Devices (README "Devices"): the host driver places everything on a 2-D mesh
 ("seeds", "data") of all devices -- every process's in a multi-process run
@@ -36,8 +38,8 @@ from zsbfm.agents import make_agent
 from zsbfm.config import Config
 from zsbfm.data.collect import collect
 from zsbfm.data.samplers import DATA_AXIS
-from zsbfm.envs import make_env
-from zsbfm.evaluate import default_goals, evaluate_params, split_results
+from zsbfm.envs import make_env_for
+from zsbfm.evaluate import default_goals, evaluate_params, metric_of, reward_states, split_results
 from zsbfm.run import Run
 
 
@@ -59,7 +61,7 @@ class Trainer:
     init: Callable           # key -> TrainCarry
     collect_data: Callable   # TrainCarry -> Dataset
     run_chunk: Callable      # (TrainCarry, Dataset, chunk index) -> (TrainCarry, chunk-mean metrics)
-    evaluate: Callable       # TrainCarry -> {"train": bool[n_ctx, n_goals], "test": ...}
+    evaluate: Callable       # (TrainCarry, Dataset) -> {"train": scores [n_ctx, n_goals], "test": ...}
     train: Callable          # key -> (TrainCarry, metrics [num_chunks, ...], evaluation)
 
 
@@ -68,7 +70,7 @@ TRACE_COUNTS = {"run_chunk": 0}
 
 
 def make_train(cfg: Config) -> Trainer:
-    env = make_env(cfg.env, n_train=cfg.n_train_layouts, episode_len=cfg.episode_len)
+    env = make_env_for(cfg)  # antwind: with its behaviour expert (trained once, then cached)
     agent = make_agent(cfg, env)
     train_ctx, test_ctx = env.contexts("train"), env.contexts("test")
     train_goals, test_goals = default_goals(env, train_ctx), default_goals(env, test_ctx)
@@ -93,11 +95,13 @@ def make_train(cfg: Config) -> Trainer:
         metrics = jax.tree_util.tree_map(jnp.mean, metrics)
         return carry.replace(agent_state=state, key=key, chunk=carry.chunk + 1), metrics
 
-    def evaluate(carry):
+    def evaluate(carry, dataset):
         params = agent.eval_params(carry.agent_state)
-        k_train, k_test = jax.random.split(jax.random.fold_in(carry.key, 1))
+        k_train, k_test, k_states = jax.random.split(jax.random.fold_in(carry.key, 1), 3)
+        # metric "return" (antwind): z is inferred from reward-labelled dataset states
+        reward_obs = reward_states(k_states, dataset) if metric_of(env) == "return" else None
         run = lambda k, ctx, goals: evaluate_params(agent, env, params, k, ctx, goals,
-                                                    cfg.eval_episode_len, cfg.context_len)
+                                                    cfg.eval_episode_len, cfg.context_len, reward_obs)
         return {"train": run(k_train, train_ctx, train_goals), "test": run(k_test, test_ctx, test_goals)}
 
     def train(key):
@@ -105,7 +109,7 @@ def make_train(cfg: Config) -> Trainer:
         dataset = collect_data(carry)
         carry, metrics = jax.lax.scan(lambda c, i: run_chunk(c, dataset, i), carry,
                                       jnp.arange(cfg.num_chunks, dtype=jnp.int32))
-        return carry, metrics, evaluate(carry)
+        return carry, metrics, evaluate(carry, dataset)
 
     return Trainer(cfg, env, agent, init, collect_data, run_chunk, evaluate, train)
 
@@ -244,8 +248,16 @@ def train(cfg: Config, resume: bool = True, progress: bool = True,
         carry = mngr.restore(start, args=ocp.args.StandardRestore(carry))
     metrics = _read_metrics(run_dir, start)
 
-    # Every seed's data is collected on the device that trains that seed.
-    dataset = jax.jit(jax.vmap(trainer.collect_data), out_shardings=shard)(carry)
+    if cfg.env == "antwind":
+        # One dataset for every seed, read from the on-disk cache (`make data ENV=antwind`)
+        # or recorded once and cached: MJX rollouts are too costly to redo per seed here.
+        from zsbfm.data.expert import load_or_collect_dataset
+
+        ds = load_or_collect_dataset(cfg, trainer.env, progress and primary)
+        dataset = jax.tree_util.tree_map(
+            lambda x: global_array(np.broadcast_to(np.asarray(x), (cfg.num_seeds,) + x.shape), shard), ds)
+    else:  # every seed's data is collected on the device that trains that seed
+        dataset = jax.jit(jax.vmap(trainer.collect_data), out_shardings=shard)(carry)
     chunk_fn = chunk_function(trainer, shard)
     bar = _progress(cfg, start, progress and primary)
     with open(os.path.join(run_dir, "metrics.jsonl") if primary else os.devnull, "w") as f:
@@ -275,12 +287,13 @@ def train(cfg: Config, resume: bool = True, progress: bool = True,
     train_seconds = time.time() - t0
 
     t_eval = time.time()
-    success = jax.jit(jax.vmap(trainer.evaluate), out_shardings=replicated(shard))(carry)
+    success = jax.jit(jax.vmap(trainer.evaluate), out_shardings=replicated(shard))(carry, dataset)
     success = jax.device_get(success)
     results = {split: split_results(success[split])["success"] for split in ("train", "test")}
     results["detail"] = {split: split_results(success[split]) for split in ("train", "test")}
     results["wall_time_s"] = {"train": round(train_seconds, 2), "eval": round(time.time() - t_eval, 2)}
     results["resumed_from_chunk"] = start
+    results["metric"] = metric_of(trainer.env)
     params = trainer.agent.eval_params(carry.agent_state)
     if jax.process_count() > 1:  # each process holds only its seeds: gather them everywhere
         params = jax.jit(lambda p: p, out_shardings=replicated(shard))(params)
