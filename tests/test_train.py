@@ -116,7 +116,7 @@ def test_evaluate_contract_and_load(tiny_run):
 
 
 @pytest.mark.parametrize("field,value,match", [
-    ("env", "antwind", "Config.env='antwind'"),
+    ("env", "humanoid", "Config.env='humanoid'"),
     ("algo", "sac", "Config.algo='sac'"),
     ("batch_size", 0, "Config.batch_size=0"),
     ("steps", 15, "a multiple of chunk_steps"),
@@ -158,5 +158,5 @@ def test_cli_train_runs(tmp_path, capsys):
     assert "test  success" in out
     assert os.path.exists(tmp_path / "cli" / "results.json")
     with pytest.raises(SystemExit) as e:
-        main(["train", "--env", "antwind"])
+        main(["train", "--env", "humanoid"])
     assert e.value.code == 2

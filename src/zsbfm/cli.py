@@ -16,7 +16,7 @@ def train(env: str = "fourrooms", algo: str = "fb", seeds: int = 3, size: str = 
     """Train all seeds of a preset together (vmapped), evaluate on train and test layouts.
 
     Args:
-        env: environment: doors | fourrooms | pointmass.
+        env: environment: doors | fourrooms | pointmass | antwind.
         algo: algorithm: fb | bfb | rfb | oracle | hilp | lap | random.
         seeds: number of seeds, trained together with jax.vmap.
         size: preset sizes: cpu (default, for a 2-core machine) | paper (the paper's GPU sizes).
