@@ -34,7 +34,8 @@ PAPER = {
                   "bfb": (0.70, 0.40), "rfb": (0.85, 0.61)},
     "pointmass": {"random": (0.00, 0.03), "fb": (0.20, 0.10), "hilp": (0.45, 0.25), "lap": (0.15, 0.10),
                   "bfb": (0.76, 0.45), "rfb": (0.88, 0.55)},
-    # AntWind: episode returns (256 steps)
+    # AntWind: episode returns (256 steps). Random's test 250 (= FB's) is as printed in the
+    # paper's Table 1, though it is far above Random's train -190
     "antwind": {"random": (-190, 250), "fb": (390, 250), "hilp": (410, 410), "lap": (340, 290),
                 "bfb": (680, 550), "rfb": (740, 640)},
 }

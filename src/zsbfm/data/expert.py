@@ -28,6 +28,7 @@ import hashlib
 import json
 import os
 import pickle
+import tempfile
 import time
 from typing import Any
 
@@ -218,8 +219,9 @@ class TD3Expert:
                   "r": st.buffer["r"].at[at].set(nxt.reward), "x2": st.buffer["x2"].at[at].set(x2)}
         ep_return = st.ep_return + nxt.reward
         done = nxt.done  # all envs start together and episodes have a fixed length
-        fresh = self._reset_envs(k_reset)
-        env_state = jax.tree_util.tree_map(lambda f, n: jnp.where(jnp.reshape(done, done.shape + (1,) * (n.ndim - 1)), f, n), fresh, nxt)
+        # every env starts at the same step and episodes have a fixed length, so all end
+        # together: reset (a vmapped mjx.forward) only then, with a real cond
+        env_state = jax.lax.cond(done[0], lambda: self._reset_envs(k_reset), lambda: nxt)
         st = st.replace(env_state=env_state, buffer=buffer, size=st.size + s.num_envs,
                         ep_return=jnp.where(done, 0.0, ep_return),
                         last_return=jnp.where(done[0], jnp.mean(ep_return), st.last_return), key=key)
@@ -257,7 +259,8 @@ class ExpertBehaviour:
     """The expert as a behaviour policy: a(s, wind) = clip(pi(s, wind) + noise, -1, 1).
 
     params are held outside hashing/equality (a pytree of arrays), so environments and
-    agents carrying this stay hashable."""
+    agents carrying this stay hashable. So two of these with different params compare
+    equal: never use one as a jit static argument or a cache key."""
 
     env: Any
     settings: ExpertSettings
@@ -279,22 +282,61 @@ def _digest(obj) -> str:
     return hashlib.sha1(json.dumps(obj, sort_keys=True, default=str).encode()).hexdigest()[:10]
 
 
-def load_or_train_expert(env, settings: ExpertSettings, data_dir: str = "datasets", progress: bool = True):
-    """The expert's actor params from data_dir/antwind/expert-<hash of settings>.pkl, trained
-    (and saved) first if missing. Only process 0 writes."""
-    path = os.path.join(data_dir, "antwind", f"expert-{_digest(dataclasses.asdict(settings))}.pkl")
+def _env_spec(env) -> dict:
+    """Everything of the environment a cached expert or dataset depends on."""
+    from zsbfm.envs import antwind as aw
+
+    return dict(version=aw.VERSION, episode_len=env.episode_len, wind=aw.WIND_FORCE, n_winds=aw.N_WINDS,
+                healthy=(aw.HEALTHY, aw.HEALTHY_Z), ctrl=aw.CTRL_COST, reset=aw.RESET_NOISE,
+                frames=aw.FRAME_SKIP)
+
+
+def _cached(path: str, build, save, load):
+    """load(path) if it exists; else process 0 builds and saves it (through a unique
+    temporary file, then an atomic rename: never a half-written or clobbered cache) while
+    the other processes of a multi-process run wait and then load it."""
     if os.path.exists(path):
-        with open(path, "rb") as f:
-            return pickle.load(f)
-    t = time.time()
-    params = train_expert(env, settings, progress)
+        return load(path)
+    multi = jax.process_count() > 1
+    value = None
     if jax.process_index() == 0:
+        value = build()
         os.makedirs(os.path.dirname(path), exist_ok=True)
-        with open(path + ".tmp", "wb") as f:
-            pickle.dump(jax.tree_util.tree_map(np.asarray, params), f)
-        os.replace(path + ".tmp", path)  # never a half-written cache
-        print(f"expert trained in {time.time() - t:.0f}s -> {path}")
-    return params
+        fd, tmp = tempfile.mkstemp(dir=os.path.dirname(path), suffix=os.path.splitext(path)[1])
+        os.close(fd)
+        save(tmp, value)
+        os.replace(tmp, path)
+    if multi:
+        from jax.experimental import multihost_utils
+
+        multihost_utils.sync_global_devices(f"zsbfm cache {os.path.basename(path)}")
+    return value if value is not None else load(path)
+
+
+def _save_pickle(path, params):
+    with open(path, "wb") as f:
+        pickle.dump(jax.tree_util.tree_map(np.asarray, params), f)
+
+
+def _load_pickle(path):
+    with open(path, "rb") as f:
+        return pickle.load(f)
+
+
+def load_or_train_expert(env, settings: ExpertSettings, data_dir: str = "datasets", progress: bool = True):
+    """The expert's actor params from data_dir/antwind/expert-<hash>.pkl (hash of the
+    settings and the environment's constants), trained and saved first if missing."""
+    key = _digest(dict(settings=dataclasses.asdict(settings), env=_env_spec(env)))
+    path = os.path.join(data_dir, "antwind", f"expert-{key}.pkl")
+
+    def build():
+        t = time.time()
+        params = train_expert(env, settings, progress)
+        if progress:
+            print(f"expert trained in {time.time() - t:.0f}s -> {path}")
+        return params
+
+    return _cached(path, build, _save_pickle, _load_pickle)
 
 
 def antwind_env(cfg, progress: bool = True):
@@ -315,20 +357,21 @@ def load_or_collect_dataset(cfg, env, progress: bool = True) -> Dataset:
     data_dir/antwind/data-<hash>.npz, recorded (on device, vmapped) and saved first if missing."""
     from zsbfm.data.collect import collect
 
-    spec = dict(policy=cfg.data_policy, episodes=cfg.episodes_per_layout, len=cfg.episode_len,
-                seed=cfg.seed, noise=cfg.expert_noise,
+    spec = dict(policy=cfg.data_policy, episodes=cfg.episodes_per_layout, seed=cfg.seed,
+                noise=cfg.expert_noise, env=_env_spec(env),
                 expert=dataclasses.asdict(expert_settings(cfg)) if cfg.data_policy == "expert" else None)
     path = os.path.join(cfg.data_dir, "antwind", f"data-{_digest(spec)}.npz")
-    if os.path.exists(path):
-        return load_dataset(path)
-    t = time.time()
-    key = jax.random.fold_in(jax.random.PRNGKey(cfg.seed), 12345)
-    n = cfg.episodes_per_layout
-    ds = jax.jit(lambda k: collect(env, k, env.contexts("train"), n))(key)
-    jax.block_until_ready(ds.obs)
-    if jax.process_index() == 0:
-        save_dataset(path + ".tmp.npz", ds)
-        os.replace(path + ".tmp.npz", path)
+
+    def build():
+        t = time.time()
+        key = jax.random.fold_in(jax.random.PRNGKey(cfg.seed), 12345)
+        n = cfg.episodes_per_layout
+        if progress:
+            print(f"recording {n} episodes x {num_contexts(env.contexts('train'))} winds ({cfg.data_policy})...")
+        ds = jax.jit(lambda k: collect(env, k, env.contexts("train"), n))(key)
+        jax.block_until_ready(ds.obs)
         if progress:
             print(f"{ds.num_transitions} transitions ({cfg.data_policy}) in {time.time() - t:.0f}s -> {path}")
-    return ds
+        return ds
+
+    return _cached(path, build, save_dataset, load_dataset)

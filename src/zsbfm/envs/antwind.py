@@ -19,7 +19,8 @@ Observation (27): qpos[2:] (torso height, torso quaternion, 8 joint angles) and 
 torso linear and angular velocity, 8 joint velocities); x and y are left out (the task is
 translation invariant) and so is the wind (the hidden dynamics context).
 
-Reward ("run forward" along +x, Gymnasium's Ant terms):
+Reward ("run forward" along +x; Gymnasium's Ant terms, with a healthy range from 0.3, not
+0.2: an ant resting on its back has its torso at 0.25):
     r = (x_after - x_before) / dt  +  HEALTHY * [HEALTHY_Z[0] < z < HEALTHY_Z[1]]  -  CTRL_COST * |a|^2
 `state_reward(obs)` is the action-free part as a function of the next observation (qvel_x
 for the forward velocity), the reward that zero-shot agents infer z from. Episodes are
@@ -46,6 +47,7 @@ from zsbfm.envs.base import EnvState
 
 Array = jax.Array
 
+VERSION = 1               # bump on any change of the dynamics: cached experts/datasets key on it
 FRAME_SKIP = 5
 N_WINDS = 20
 WIND_FORCE = 2.0          # newtons on the torso (the ant weighs about 9 N; see the tests)
@@ -156,8 +158,9 @@ class AntWind:
     # -- dynamics ---------------------------------------------------------------------------
     def reset(self, key: Array, ctx: WindContext, goal: Array | None = None,
               start: Array | None = None) -> EnvState:
-        """Standing at the origin, joints and velocities perturbed by +-RESET_NOISE (goal and
-        start are not used: AntWind's task is a reward)."""
+        """Standing at the origin (root position and orientation exact), joint angles
+        perturbed by U(-RESET_NOISE, RESET_NOISE), velocities by N(0, RESET_NOISE^2) (goal
+        and start are not used: AntWind's task is a reward)."""
         from mujoco import mjx
 
         m = mjx_model()
