@@ -28,7 +28,7 @@ from zsbfm.agents import make_agent
 from zsbfm.data.collect import rollout
 from zsbfm.data.expert import load_or_collect_dataset
 from zsbfm.envs import index_contexts, make_env_for
-from zsbfm.envs.antwind import CTRL_COST, FRAME_SKIP, HEALTHY, HEALTHY_Z, TORSO, mj_model, observe
+from zsbfm.envs.antwind import CTRL_COST, FRAME_SKIP, TORSO, healthy_bonus, mj_model, observe
 from zsbfm.evaluate import context_episode, reward_states
 from zsbfm.run import load
 
@@ -47,8 +47,8 @@ def native_return(m, qpos, qvel, force, act, length: int) -> float:
         d.xfrc_applied[TORSO, :3] = force
         for _ in range(FRAME_SKIP):
             mujoco.mj_step(m, d)
-        healthy = HEALTHY_Z[0] < d.qpos[2] < HEALTHY_Z[1]
-        total += (d.qpos[0] - x0) / dt + HEALTHY * healthy - CTRL_COST * float(np.sum(a ** 2))
+        total += ((d.qpos[0] - x0) / dt + float(healthy_bonus(d.qpos[2]))
+                  - CTRL_COST * float(np.sum(a ** 2)))
     return total
 
 

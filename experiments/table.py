@@ -27,6 +27,7 @@ import numpy as np
 
 import zsbfm
 from zsbfm.config import Config
+from zsbfm.evaluate import metric_of
 
 # The paper's Tables 2 (train) and 1 (test): (train, test) success.
 PAPER = {
@@ -39,7 +40,6 @@ PAPER = {
     "antwind": {"random": (-190, 250), "fb": (390, 250), "hilp": (410, 410), "lap": (340, 290),
                 "bfb": (680, 550), "rfb": (740, 640)},
 }
-RETURN_ENVS = ("antwind",)  # scored by episode return, not success rate
 NAMES = {"random": "Random", "fb": "FB", "hilp": "HILP", "lap": "Laplacian", "bfb": "Belief-FB",
          "rfb": "Rotation-FB", "oracle": "Oracle FB (true layout id)"}
 ORDER = ("random", "fb", "hilp", "lap", "bfb", "rfb", "oracle")
@@ -117,7 +117,8 @@ def run_table(env: str, algos, seeds: int, runs_dir: str, overrides, size: str =
 
 def markdown(env: str, rows: dict, seeds: int, size: str) -> str:
     paper = PAPER.get(env, {})
-    metric, fmt = ("return", ".0f") if env in RETURN_ENVS else ("success", ".2f")
+    metric = metric_of(zsbfm.make_env(env))  # "success" or "return", the env's own
+    fmt = ".0f" if metric == "return" else ".2f"
     lines = [f"| {env} ({seeds} seeds, {size} preset) | train {metric} | test {metric} | paper train / test "
              f"| wall time (train + eval) |", "|---|---|---|---|---|"]
     for algo, row in rows.items():
@@ -141,6 +142,7 @@ def bar_chart(env: str, rows: dict, path: str) -> None:
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
+    returns = metric_of(zsbfm.make_env(env)) == "return"
     algos = [a for a in rows if a != "oracle"]
     x = np.arange(len(algos))
     fig, axes = plt.subplots(1, 2, figsize=(10, 3.6), sharey=True)
@@ -151,10 +153,10 @@ def bar_chart(env: str, rows: dict, path: str) -> None:
         paper = [PAPER.get(env, {}).get(a, (np.nan, np.nan))[k] for a in algos]
         ax.scatter(x, paper, marker="_", s=400, color="k", zorder=3, label="paper")
         ax.set_xticks(x, [NAMES[a].split(" ")[0] for a in algos], rotation=20)
-        ax.set_title(f"{env}: {split} {'winds' if env in RETURN_ENVS else 'layouts'}")
-        if env not in RETURN_ENVS:
+        ax.set_title(f"{env}: {split} {'winds' if returns else 'layouts'}")
+        if not returns:
             ax.set_ylim(0, 1)
-    axes[0].set_ylabel("episode return" if env in RETURN_ENVS else "success rate")
+    axes[0].set_ylabel("episode return" if returns else "success rate")
     axes[0].legend(loc="upper left")
     fig.tight_layout()
     fig.savefig(path, dpi=120)

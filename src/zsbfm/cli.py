@@ -68,12 +68,14 @@ def evaluate(path: str, split: str = "test") -> None:
     rate, or episode return for antwind)."""
     import numpy as np
 
+    from zsbfm.envs import make_env
     from zsbfm.evaluate import evaluate as run_eval
+    from zsbfm.evaluate import metric_of
     from zsbfm.run import load
 
     run = load(path)
     success = np.asarray(run_eval(run, split=split))
-    metric = "return" if run.cfg.env == "antwind" else "success"
+    metric = metric_of(make_env(run.cfg.env))
     print(json.dumps({"split": split, f"{metric}_per_seed": success.mean((1, 2)).round(4).tolist(),
                       "mean": round(float(success.mean()), 4)}))
 

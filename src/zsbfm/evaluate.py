@@ -37,8 +37,8 @@ def goal_rollout(agent, env, params, key, ctx, context: Context, goal, length: i
 
 
 def return_rollout(agent, env, params, key, ctx, context: Context, reward_obs, length: int):
-    """Return of one greedy episode for the reward env.state_reward, with z inferred from the
-    states reward_obs [n, obs_dim] (and h from `context`)."""
+    """The environment's return (control cost included) of one greedy episode, with z
+    inferred from env.state_reward on the states reward_obs [n, obs_dim] and h from `context`."""
     task = agent.reward_task(params, reward_obs, env.state_reward(reward_obs), context)
     policy = lambda k, obs: agent.act(params, obs, task, k)
     _, _, reward = rollout(env, key, ctx, policy, length)

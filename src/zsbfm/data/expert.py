@@ -23,16 +23,13 @@ episodes). Both the expert's params and the dataset are cached under
 from __future__ import annotations
 
 import dataclasses
-import functools
 import hashlib
 import json
 import os
 import pickle
 import tempfile
 import time
-from typing import Any
-
-from typing import Sequence
+from typing import Any, Sequence
 
 import flax.linen as nn
 import jax
@@ -42,7 +39,7 @@ import optax
 from flax import struct
 
 from zsbfm.data.dataset import Dataset, load_dataset, save_dataset
-from zsbfm.envs.base import index_contexts, num_contexts
+from zsbfm.envs.base import num_contexts
 from zsbfm.nets.mlp import MLP
 
 
@@ -218,7 +215,7 @@ class TD3Expert:
         buffer = {"x": st.buffer["x"].at[at].set(x), "a": st.buffer["a"].at[at].set(a),
                   "r": st.buffer["r"].at[at].set(nxt.reward), "x2": st.buffer["x2"].at[at].set(x2)}
         ep_return = st.ep_return + nxt.reward
-        done = nxt.done  # all envs start together and episodes have a fixed length
+        done = nxt.done
         # every env starts at the same step and episodes have a fixed length, so all end
         # together: reset (a vmapped mjx.forward) only then, with a real cond
         env_state = jax.lax.cond(done[0], lambda: self._reset_envs(k_reset), lambda: nxt)

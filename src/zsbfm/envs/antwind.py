@@ -111,11 +111,14 @@ def observe(qpos: Array, qvel: Array) -> Array:
     return jnp.concatenate([qpos[..., 2:], qvel], -1)
 
 
+def healthy_bonus(z: Array) -> Array:
+    """HEALTHY while the torso height z is inside HEALTHY_Z (open interval), else 0."""
+    return HEALTHY * ((z > HEALTHY_Z[0]) & (z < HEALTHY_Z[1])).astype(jnp.float32)
+
+
 def state_reward(obs: Array) -> Array:
     """The action-free reward of arriving in `obs`: forward velocity + healthy bonus ([...])."""
-    z, vx = obs[..., 0], obs[..., 13]
-    healthy = (z > HEALTHY_Z[0]) & (z < HEALTHY_Z[1])
-    return vx + HEALTHY * healthy.astype(jnp.float32)
+    return obs[..., 13] + healthy_bonus(obs[..., 0])  # qvel_x, torso z
 
 
 @dataclasses.dataclass(frozen=True)
@@ -186,9 +189,7 @@ class AntWind:
         action = jnp.clip(jnp.asarray(action, jnp.float32), -1.0, 1.0)
         data = self.physics(state.inner, action, state.ctx.force)
         obs = observe(data.qpos, data.qvel)
-        z = data.qpos[2]
-        healthy = (z > HEALTHY_Z[0]) & (z < HEALTHY_Z[1])
-        reward = ((data.qpos[0] - state.inner.qpos[0]) / self.dt + HEALTHY * healthy
+        reward = ((data.qpos[0] - state.inner.qpos[0]) / self.dt + healthy_bonus(data.qpos[2])
                   - CTRL_COST * jnp.sum(action ** 2))
         t = state.t + 1
         return state.replace(obs=obs, reward=reward.astype(jnp.float32), done=t >= self.episode_len,
