@@ -145,3 +145,43 @@ def test_continuous_rotation_fb_trains_end_to_end(tmp_path):
         run = zsbfm.train(cfg, progress=False)
         assert len(run.results["test"]) == 2 and all(0 <= v <= 1 for v in run.results["test"])
         assert np.isfinite(run.metrics[-1]["fb_loss"]).all()
+
+
+def test_actor_bc_pulls_the_policy_to_the_data_actions():
+    """TD3+BC (Config.actor_bc > 0): descending the actor loss alone (F frozen at init)
+    fits the dataset's actions; the pure -Q actor (actor_bc = 0) does not."""
+    import dataclasses
+
+    import optax
+
+    from zsbfm.agents import FBAgent, Task
+    from zsbfm.data.samplers import sample_transitions
+
+    cfg = zsbfm.Config.preset("pointmass", "fb", n_train_layouts=2, episodes_per_layout=4, d=8,
+                              f_pre_hidden=(32,), f_pre_out=32, f_hidden=(32,), b_hidden=(32,),
+                              actor_hidden=(64, 64), batch_size=64)
+    env = zsbfm.make_env("pointmass", n_train=2)
+    ds = collect(env, jax.random.PRNGKey(0), env.contexts("train"), 4)
+    batch = sample_transitions(jax.random.PRNGKey(1), ds, 64)
+    z = jax.random.normal(jax.random.PRNGKey(2), (64, 8))
+    task = Task(z=z, h=jnp.zeros((64, 0)))
+
+    def fitted_mse(actor_bc):
+        agent = FBAgent(dataclasses.replace(cfg, actor_bc=actor_bc), env)
+        params = agent.init(jax.random.PRNGKey(3)).params
+        opt = optax.adam(1e-3)
+
+        def step(carry, _):
+            actor, opt_state = carry
+            grad = jax.grad(lambda a: agent.actor_loss(params.replace(actor=a), batch, task)[0])(actor)
+            updates, opt_state = opt.update(grad, opt_state)
+            return (optax.apply_updates(actor, updates), opt_state), None
+
+        (actor, _), _ = jax.lax.scan(step, (params.actor, opt.init(params.actor)), None, 300)
+        return float(jnp.mean((agent.policy(actor, batch.obs, task) - batch.action) ** 2))
+
+    spread = float(jnp.mean(batch.action ** 2))
+    mse_bc, mse_pure = fitted_mse(10.0), fitted_mse(0.0)
+    assert mse_bc < 0.3 * spread and mse_bc < 0.3 * mse_pure, (mse_bc, mse_pure, spread)
+    with pytest.raises(ValueError, match="actor_bc"):
+        dataclasses.replace(cfg, actor_bc=-1.0)

@@ -69,6 +69,7 @@ class Config:
     actor_hidden: tuple[int, ...] = (256, 256)
     target_noise: float = 0.2        # std of the target-policy smoothing noise
     target_noise_clip: float = 0.3
+    actor_bc: float = 0.0            # TD3+BC weight: 0 = the paper's pure -Q actor (agents/fb.py)
 
     # --- Belief-FB / Rotation-FB (ignored by fb) -------------------------------------------
     h_dim: int = 0               # dimension of the context h; 0 -> d (rfb needs h_dim = d)
@@ -190,6 +191,8 @@ class Config:
             bad("batch_size", self.batch_size, "batch_size >= 2 (the FB loss pairs batch items)")
         if self.env in CONTINUOUS_ENVS and self.obs_encoding != "raw":
             bad("obs_encoding", self.obs_encoding, f"'raw' for the continuous env {self.env!r} (one-hot needs a grid)")
+        if not self.actor_bc >= 0:
+            bad("actor_bc", self.actor_bc, "actor_bc >= 0 (0 disables the behaviour-cloning term)")
         if self.target_noise < 0 or self.target_noise_clip < 0:
             bad("target_noise", (self.target_noise, self.target_noise_clip), "non-negative noise and clip")
         if self.episode_len != EPISODE_LEN[self.env]:

@@ -264,15 +264,27 @@ class FBAgent:
         return l_fb + self.cfg.ortho_coef * l_ortho + l_actor, metrics
 
     def actor_loss(self, params: FBParams, batch: Transitions, task: Task) -> tuple[Array, dict]:
-        """Continuous actions: -mean_i min_k F_k(s_i, pi(s_i, w_i), w_i)^T z_i, with F frozen
-        (stop-gradient), so only the actor moves. Discrete: 0 (the policy is argmax Q)."""
+        """Continuous actions, with q_i = min_k F_k(s_i, pi(s_i, w_i), w_i)^T z_i and F frozen
+        (stop-gradient), so only the actor moves:
+            actor_bc = 0 (the paper):  L = -mean_i q_i
+            actor_bc > 0 (TD3+BC):     L = -mean_i q_i / sg(mean_i |q_i|)
+                                           + actor_bc * mean_i mean_j (pi(s_i, w_i)_j - a_ij)^2
+        with a_i the dataset's action. The second keeps the policy near the behaviour
+        data's actions (offline RL's guard against maximising F where it extrapolates; on
+        AntWind also against saturated, costly actions the inferred reward cannot see);
+        normalising q makes actor_bc scale-free (Fujimoto & Gu 2021; their alpha = 1 / actor_bc).
+        Discrete: 0 (the policy is argmax Q)."""
         if self.env.discrete:
             return jnp.zeros(()), {}
         task = jax.lax.stop_gradient(task)  # only the actor learns from -Q (not an encoder via h)
         a = self.policy(params.actor, batch.obs, task)
         F = self.forward(jax.lax.stop_gradient(params.F), batch.obs, task, a)   # [2, n, d]
         q = jnp.min(jnp.einsum("knd,nd->kn", F, task.z), 0)
-        return -jnp.mean(q), {"actor_q": jnp.mean(q)}
+        if self.cfg.actor_bc == 0:
+            return -jnp.mean(q), {"actor_q": jnp.mean(q)}
+        bc = jnp.mean((a - batch.action) ** 2)
+        q_scale = jax.lax.stop_gradient(jnp.mean(jnp.abs(q))) + 1e-6
+        return -jnp.mean(q) / q_scale + self.cfg.actor_bc * bc, {"actor_q": jnp.mean(q), "actor_bc_mse": bc}
 
     def target_next_F(self, target: FBParams, next_obs: Array, task: Task, aux: dict) -> Array:
         """Fbar(s', a', w) at the target policy's next action(s): [2, n, d].
