@@ -49,7 +49,7 @@ class Config:
     data_dir: str = "datasets"
 
     # --- FB -----------------------------------------------------------------------------
-    obs_encoding: str = "onehot"              # network input: "onehot" (grid coords) | "raw"
+    obs_encoding: str = "onehot"              # network input: "onehot" (grid coords) | "cell" | "raw"
     d: int = 50                               # latent dimension of z, F, B
     f_pre_hidden: tuple[int, ...] = (128,)    # preprocessor hidden layers
     f_pre_out: int = 128                      # preprocessor output width
@@ -119,8 +119,8 @@ class Config:
             bad("size", self.size, f"one of {SIZES}")
         if self.twin_target not in ("mean", "min"):
             bad("twin_target", self.twin_target, "'mean' or 'min'")
-        if self.obs_encoding not in ("raw", "onehot"):
-            bad("obs_encoding", self.obs_encoding, "'raw' or 'onehot'")
+        if self.obs_encoding not in ("raw", "onehot", "cell"):
+            bad("obs_encoding", self.obs_encoding, "'raw', 'onehot' or 'cell'")
         if self.enc_target not in ("episode", "context"):
             bad("enc_target", self.enc_target, "'episode' or 'context'")
         if self.encoder_mode not in ENCODER_MODES:
@@ -190,7 +190,7 @@ class Config:
         if self.batch_size < 2:
             bad("batch_size", self.batch_size, "batch_size >= 2 (the FB loss pairs batch items)")
         if self.env in CONTINUOUS_ENVS and self.obs_encoding != "raw":
-            bad("obs_encoding", self.obs_encoding, f"'raw' for the continuous env {self.env!r} (one-hot needs a grid)")
+            bad("obs_encoding", self.obs_encoding, f"'raw' for the continuous env {self.env!r} (one-hot/cell need a grid)")
         if not self.actor_bc >= 0:
             bad("actor_bc", self.actor_bc, "actor_bc >= 0 (0 disables the behaviour-cloning term)")
         if self.target_noise < 0 or self.target_noise_clip < 0:

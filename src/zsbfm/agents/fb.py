@@ -25,6 +25,7 @@ from typing import Any
 
 import jax
 import jax.numpy as jnp
+import numpy as np
 import optax
 from flax import struct
 
@@ -154,11 +155,19 @@ class FBAgent:
         "onehot": one-hot of each integer coordinate, [..., sum of (high - low + 1)]; for
                   grid observations. Same information as (x, y), but lets an MLP carve
                   the sharp wall discontinuities of a successor measure on a grid.
+        "cell":   one-hot of the cell itself, [..., prod of (high - low + 1)]: the first
+                  layer holds a free embedding per cell (a tabular input), where "onehot"
+                  makes it additive in x and y.
         """
         if self.cfg.obs_encoding == "raw":
             return self.normalize_obs(obs)
         idx = jnp.round(obs - jnp.asarray(self.env.obs_low)).astype(jnp.int32)
         sizes = [int(h - l) + 1 for l, h in zip(self.env.obs_low, self.env.obs_high)]
+        if self.cfg.obs_encoding == "cell":
+            flat = jnp.zeros(idx.shape[:-1], jnp.int32)
+            for i, n in enumerate(sizes):  # row-major over the coordinates
+                flat = flat * n + idx[..., i]
+            return jax.nn.one_hot(flat, int(np.prod(sizes)))
         return jnp.concatenate([jax.nn.one_hot(idx[..., i], n) for i, n in enumerate(sizes)], -1)
 
     def forward(self, F_params, obs: Array, task: Task, action: Array | None = None) -> Array:
