@@ -319,7 +319,11 @@ _PRESETS: dict[tuple[str, str], dict[str, Any]] = {
     # 100-step windows; returns over 256-step episodes
     ("antwind", "cpu"): dict(n_train_layouts=15, episodes_per_layout=100, episode_len=256,
                              eval_episode_len=256, context_len=100, obs_encoding="raw",
-                             gamma=0.98, steps=10_000),
+                             gamma=0.98, steps=10_000,
+                             # TD3+BC actor (agents/fb.py): the pure -Q actor pushed saturated,
+                             # costly actions off the expert data (FB, 3 seeds: return -124 / -131
+                             # train / test with actor_bc=0, 224 / 197 with 0.4; README)
+                             actor_bc=0.4),
     ("antwind", "paper"): dict(n_train_layouts=15, episodes_per_layout=1000, episode_len=256,
                                eval_episode_len=256, context_len=100, obs_encoding="raw",
                                expert_steps=3_000_000, d=150, f_pre_hidden=(1024,), f_pre_out=512,
