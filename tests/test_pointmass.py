@@ -185,3 +185,5 @@ def test_actor_bc_pulls_the_policy_to_the_data_actions():
     assert mse_bc < 0.3 * spread and mse_bc < 0.3 * mse_pure, (mse_bc, mse_pure, spread)
     with pytest.raises(ValueError, match="actor_bc"):
         dataclasses.replace(cfg, actor_bc=-1.0)
+    with pytest.raises(ValueError, match="actor_bc.*discrete"):
+        zsbfm.Config.preset("fourrooms", "fb", actor_bc=0.4)

@@ -193,6 +193,8 @@ class Config:
             bad("obs_encoding", self.obs_encoding, f"'raw' for the continuous env {self.env!r} (one-hot/cell need a grid)")
         if not self.actor_bc >= 0:
             bad("actor_bc", self.actor_bc, "actor_bc >= 0 (0 disables the behaviour-cloning term)")
+        if self.actor_bc > 0 and self.env not in CONTINUOUS_ENVS:
+            bad("actor_bc", self.actor_bc, f"0 for the discrete env {self.env!r} (no actor: pi = argmax Q)")
         if self.target_noise < 0 or self.target_noise_clip < 0:
             bad("target_noise", (self.target_noise, self.target_noise_clip), "non-negative noise and clip")
         if self.episode_len != EPISODE_LEN[self.env]:
