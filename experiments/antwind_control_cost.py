@@ -39,8 +39,8 @@ def main():
         obs = reward_states(jax.random.PRNGKey(0), load_or_collect_dataset(cfg, env, progress=False))
         context = context_episode(env, jax.random.PRNGKey(1), index_contexts(env.contexts("train"), 0), cfg.context_len)
         sq = []
-        for s in range(jax.tree_util.tree_leaves(run.params)[0].shape[0]):
-            params = jax.tree_util.tree_map(lambda x: x[s], run.params)
+        for s in range(cfg.num_seeds):
+            params = run.seed_params(s)
             task = agent.reward_task(params, obs, env.state_reward(obs), context)
             batch = jax.tree_util.tree_map(lambda x: jnp.broadcast_to(x, (a.states,) + x.shape), task)
             act = agent.act(params, obs[:a.states], batch, jax.random.PRNGKey(2))

@@ -40,7 +40,7 @@ def main():
         raise SystemExit(f"--run {a.run} is {cfg.algo!r}; h exists for bfb and rfb runs")
     env = make_env_for(cfg)
     agent = make_agent(cfg, env)
-    params = jax.tree_util.tree_map(lambda x: x[0], run.params)
+    params = run.seed_params(0)
     angles = {s: np.asarray(env.contexts(s).angle) for s in ("train", "test")}
     all_angles = np.concatenate([angles["train"], angles["test"]])
     ds = jax.jit(lambda k: collect(env, k, wind_context(jnp.asarray(all_angles)), a.episodes))(jax.random.PRNGKey(7))

@@ -65,7 +65,7 @@ def main():
         raise SystemExit(f"--run {a.run} is a {cfg.env!r} run; this script compares antwind policies")
     env = make_env_for(cfg)
     agent = make_agent(cfg, env)
-    params = jax.tree_util.tree_map(lambda x: x[a.seed], run.params)
+    params = run.seed_params(a.seed)
     reward_obs = reward_states(jax.random.PRNGKey(1), load_or_collect_dataset(cfg, env))
     m = mj_model()
     act_jit = jax.jit(lambda obs, task: agent.act(params, obs, task, jax.random.PRNGKey(0)))

@@ -34,7 +34,7 @@ def episode_embeddings(run, split, n_layouts=5, episodes=20, seed=0, key=0):
     cfg = run.cfg
     env = zsbfm.make_env(cfg.env, n_train=cfg.n_train_layouts)
     agent = make_agent(cfg, env)
-    params = jax.tree_util.tree_map(lambda x: x[seed], run.params)
+    params = run.seed_params(seed)
     ctxs = index_contexts(env.contexts(split), jnp.arange(n_layouts))
     env_ctx = zsbfm.make_env(cfg.env, n_train=cfg.n_train_layouts, episode_len=cfg.context_len)
     ds = collect(env_ctx, jax.random.PRNGKey(key), ctxs, episodes)
@@ -98,7 +98,7 @@ def plot_q_maps(runs, path, goal_index=0):
         cfg = run.cfg
         env = zsbfm.make_env(cfg.env, n_train=cfg.n_train_layouts)
         agent = make_agent(cfg, env)
-        params = jax.tree_util.tree_map(lambda x: x[0], run.params)
+        params = run.seed_params(0)
         for row, split in enumerate(("train", "test")):
             ctx = index_contexts(env.contexts(split), 0)
             goal = env.eval_goals(ctx)[goal_index]

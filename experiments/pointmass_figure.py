@@ -54,7 +54,7 @@ def main():
     cfg = run.cfg
     env = zsbfm.make_env("pointmass", n_train=cfg.n_train_layouts, episode_len=cfg.episode_len)
     agent = make_agent(cfg, env)
-    params = jax.tree_util.tree_map(lambda x: x[0], run.params)
+    params = run.seed_params(0)
     rollouts, titles = [], []
     for split in ("train", "test"):
         ctxs = env.contexts(split)

@@ -8,7 +8,7 @@ for path in sys.argv[1:]:
     run = zsbfm.load(path); cfg = run.cfg
     env = make_env(cfg.env, n_train=cfg.n_train_layouts, episode_len=cfg.episode_len)
     agent = make_agent(cfg, env)
-    p = jax.tree_util.tree_map(lambda x: x[0], run.params)
+    p = run.seed_params(0)
     fl = flatten_dict(p.F)
     film = {"/".join(k[2:]): float(jnp.abs(v).mean()) for k, v in fl.items() if any(s.startswith("film_") for s in k) and k[-1] == "kernel"}
     S = env.size; H = cfg.n_train_layouts

@@ -9,7 +9,7 @@ run = zsbfm.load(sys.argv[1]); cfg = run.cfg
 split = sys.argv[2] if len(sys.argv) > 2 else "train"
 env = make_env(cfg.env, n_train=cfg.n_train_layouts, episode_len=cfg.episode_len)
 agent = make_agent(cfg, env)
-params = jax.tree_util.tree_map(lambda x: x[0], run.params)
+params = run.seed_params(0)
 S = env.size
 cells = np.array([(x, y) for y in range(S) for x in range(S)], np.float32)
 Ball = np.asarray(agent.backward(params.B, jnp.asarray(cells)))

@@ -11,7 +11,7 @@ run = zsbfm.load(sys.argv[1]); cfg = run.cfg
 nl = int(sys.argv[2]) if len(sys.argv) > 2 else 4
 env = make_env(cfg.env, n_train=cfg.n_train_layouts, episode_len=cfg.episode_len)
 agent = make_agent(cfg, env)
-params = jax.tree_util.tree_map(lambda x: x[0], run.params)
+params = run.seed_params(0)
 S = env.size; g_ = cfg.gamma
 cells = jnp.asarray([(x, y) for y in range(S) for x in range(S)], jnp.float32)
 Ball = np.asarray(agent.backward(params.B, cells))

@@ -91,7 +91,7 @@ def plot_value_maps(run, path, seed: int = 0, goal_index: int = 0):
     agent = make_agent(cfg, env)
     if not hasattr(env, "size") or not hasattr(agent, "q_values") or not env.discrete:
         return None  # value maps are drawn for gridworld agents with Q-values
-    params = jax.tree_util.tree_map(lambda x: x[seed], run.params)
+    params = run.seed_params(seed)
     panels = []
     for split in ("train", "test"):
         ctx = index_contexts(env.contexts(split), 0)

@@ -30,6 +30,10 @@ class Run:
     results: dict               # {"train": [success per seed], "test": [...], ...}
     metrics: list = dataclasses.field(default_factory=list)
 
+    def seed_params(self, seed: int) -> Any:
+        """The evaluation params of one seed (the seed axis indexed away)."""
+        return jax.tree_util.tree_map(lambda x: x[seed], self.params)
+
     def save(self, path: str | None = None) -> str:
         """Write config, results, metrics and an orbax checkpoint of params to `path`.
 

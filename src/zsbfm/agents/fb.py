@@ -21,11 +21,11 @@ shared by every flavour and by the continuous-action variant.
 from __future__ import annotations
 
 import dataclasses
+import math
 from typing import Any
 
 import jax
 import jax.numpy as jnp
-import numpy as np
 import optax
 from flax import struct
 
@@ -167,7 +167,7 @@ class FBAgent:
             flat = jnp.zeros(idx.shape[:-1], jnp.int32)
             for i, n in enumerate(sizes):  # row-major over the coordinates
                 flat = flat * n + idx[..., i]
-            return jax.nn.one_hot(flat, int(np.prod(sizes)))
+            return jax.nn.one_hot(flat, math.prod(sizes))
         return jnp.concatenate([jax.nn.one_hot(idx[..., i], n) for i, n in enumerate(sizes)], -1)
 
     def forward(self, F_params, obs: Array, task: Task, action: Array | None = None) -> Array:
