@@ -6,7 +6,9 @@
     python experiments/ablations.py --which kappa --set steps=6000   # shortened
 
 Each point is an ordinary `zsbfm.train` run (3 vmapped seeds, CPU preset) named
-<env>-<algo>-<which>-<value>, so a killed sweep resumes and finished points are read back.
+<env>-<algo>-<which>-<value>, so a killed sweep resumes and finished points are read back;
+a point equal to the preset (20 layouts, context 100, kappa 50 on fourrooms) is the
+preset's own run, shared with `make table`.
 Writes results/ablation_<which>_<env>.json and .png (success vs the swept value, train and
 test, mean +- std over seeds).
 
@@ -58,8 +60,11 @@ def main():
             x = pt[X[a.which]]
             if a.which == "layouts" and a.env == "pointmass":  # 1e6 transitions of 250 steps
                 pt = dict(pt, episodes_per_layout=round(1_000_000 / (pt["n_train_layouts"] * 250)))
-            cfg = table.sweep_config(a.env, algo, "cpu", a.seeds, a.runs_dir, a.set,
-                                     name=f"{a.env}-{algo}-{a.which}-{x:g}", **pt)
+            # a point that *is* the preset reads back (or trains) the preset's own run
+            preset = table.sweep_config(a.env, algo, "cpu", a.seeds, a.runs_dir, a.set)
+            is_preset = all(getattr(preset, k) == v for k, v in pt.items())
+            cfg = preset if is_preset else table.sweep_config(
+                a.env, algo, "cpu", a.seeds, a.runs_dir, a.set, name=f"{a.env}-{algo}-{a.which}-{x:g}", **pt)
             cfgs.append((algo, x, cfg))
 
     rows = []

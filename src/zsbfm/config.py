@@ -82,6 +82,7 @@ class Config:
     pred_hidden: tuple[int, ...] = (64, 64)     # predictor g(s, a, h) -> s'
     enc_lr: float = 1e-3
     enc_beta: float = 1e-6       # weight of KL(q(h | episode) || N(0, I)) in the encoder loss
+    enc_contrast: float = 0.0    # weight of a same-layout InfoNCE on h (agents/belief.py; 0 = paper)
     enc_steps: int = 4_000       # K: encoder pre-training steps before FB (staged mode)
     enc_batch: int = 16          # episodes (context windows) per encoder batch
     enc_target: str = "context"  # predict the window's own transitions, or another episode's of its layout ("context")
@@ -153,6 +154,8 @@ class Config:
             bad("enc_lr", self.enc_lr, "enc_lr > 0")
         if self.enc_beta < 0:
             bad("enc_beta", self.enc_beta, "enc_beta >= 0")
+        if self.enc_contrast < 0:
+            bad("enc_contrast", self.enc_contrast, "enc_contrast >= 0")
         if not self.kappa > 0:
             bad("kappa", self.kappa, "kappa > 0")
         if self.algo == "rfb" and self.h_dim not in (0, self.d):

@@ -134,12 +134,20 @@ class BeliefFBAgent(FBAgent):
                            h_table=jnp.zeros((n_ep, self.num_windows, self.h_dim)))
 
     # -- encoder pre-training ------------------------------------------------------------------
-    def encoder_loss(self, enc, window, target, key):
-        """Predictor MSE + beta KL. window, target: (obs, action, next_obs) batches [n, L, ...].
+    def encoder_loss(self, enc, window, target, key, context=None):
+        """Predictor MSE + beta KL (+ a contrastive term). window, target: (obs, action,
+        next_obs) batches [n, L, ...]; context: int[n], the layout of each window.
 
         L = mean_{i,t} |g(s_it, a_it, h_i) - s'_it|^2 + beta mean_i KL(N(mu_i, sigma_i^2) || N(0, I)),
         with h_i = mu_i + sigma_i * eps (reparameterised) inferred from window i and the
         regression targets (s, a, s') taken from target i. Also returns mu for reuse.
+
+        With enc_contrast > 0, plus enc_contrast * a supervised InfoNCE over the batch:
+        with m_j = mu(target j) and l_ij = -|mu_i - m_j|^2,
+            -mean_i log( sum_{j: context_j = context_i} e^{l_ij} / sum_j e^{l_ij} ),
+        which pulls together the h of windows of one layout and pushes apart those of
+        different layouts (not the paper's: for dynamics that barely change one step, such
+        as AntWind's wind under ground contact, the predictor alone need not use h).
         """
         mu, log_sigma = self.encode(enc, *window)
         h = mu + jnp.exp(log_sigma) * jax.random.normal(key, mu.shape)
@@ -151,7 +159,20 @@ class BeliefFBAgent(FBAgent):
         mse = jnp.mean(jnp.sum((pred - self.normalize_obs(next_obs)) ** 2, -1))
         kl = jnp.mean(0.5 * jnp.sum(mu**2 + jnp.exp(2 * log_sigma) - 1.0 - 2.0 * log_sigma, -1))
         loss = mse + self.cfg.enc_beta * kl
-        return loss, ({"enc_mse": mse, "enc_kl": kl, "h_norm": jnp.mean(jnp.linalg.norm(mu, axis=-1))}, mu)
+        metrics = {"enc_mse": mse, "enc_kl": kl, "h_norm": jnp.mean(jnp.linalg.norm(mu, axis=-1))}
+        if self.cfg.enc_contrast > 0:
+            nce = self.contrastive_loss(mu, self.encode(enc, *target)[0], context)
+            loss = loss + self.cfg.enc_contrast * nce
+            metrics["enc_nce"] = nce
+        return loss, (metrics, mu)
+
+    @staticmethod
+    def contrastive_loss(mu: Array, mu_target: Array, context: Array) -> Array:
+        """Supervised InfoNCE of mu [n, h] against mu_target [n, h]; positives share context [n]."""
+        logits = -jnp.sum((mu[:, None] - mu_target[None]) ** 2, -1)            # [n, n]
+        positive = context[:, None] == context[None]
+        log_pos = jax.nn.logsumexp(jnp.where(positive, logits, -jnp.inf), axis=1)
+        return jnp.mean(jax.nn.logsumexp(logits, axis=1) - log_pos)
 
     def sample_episode_windows(self, key, dataset, n):
         """n random episodes and one context window of each: (episode [n], obs, action, next_obs)."""
@@ -176,7 +197,7 @@ class BeliefFBAgent(FBAgent):
         else:
             target = window
         grads, (metrics, _) = jax.grad(self.encoder_loss, has_aux=True)(
-            state.params.enc, tuple(window), tuple(target), k_eps)
+            state.params.enc, tuple(window), tuple(target), k_eps, dataset.context_id[ep])
         updates, enc_opt_state = self.enc_optimizer.update(grads, state.enc_opt_state, state.params.enc)
         enc = optax.apply_updates(state.params.enc, updates)
         params = state.params.replace(enc=enc)
@@ -269,7 +290,7 @@ class BeliefFBAgent(FBAgent):
 
         def total_loss(params):
             window = (w_obs, w_act, w_next)
-            l_enc, (m_enc, mu) = self.encoder_loss(params.enc, window, window, k_eps)
+            l_enc, (m_enc, mu) = self.encoder_loss(params.enc, window, window, k_eps, dataset.context_id[ep])
             h = mu[which]
             z = self.train_z(state.replace(params=params), dataset, batch, jax.lax.stop_gradient(h), k_z)
             aux = self.aux_batch(dataset, batch, k_aux)

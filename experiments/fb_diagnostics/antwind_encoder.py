@@ -1,0 +1,91 @@
+"""How much wind the AntWind context encoder recovers, for encoder settings given as --set.
+
+    python experiments/fb_diagnostics/antwind_encoder.py [--set enc_steps=4000 pred_hidden=256,256]
+
+Trains only f_dyn (the staged pre-training phase, `BeliefFBAgent.pretrain_step`) on the
+cached AntWind dataset, then reads the wind off mu with a linear probe: ridge regression
+of (cos, sin) of the wind angle on mu, fitted on 80 of each train wind's 100 episodes and
+scored on the other 20 (angle error in degrees; 90 = chance), and on whole held-out train
+winds (fit on the even winds, score the odd ones: does h interpolate between winds?).
+Also prints the predictor's MSE with each episode's own h and with h of a random other
+episode (the gap is what h buys the predictor).
+"""
+from __future__ import annotations
+
+import argparse
+import time
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from zsbfm.agents import make_agent
+from zsbfm.config import Config
+from zsbfm.data.expert import antwind_env, load_or_collect_dataset
+from zsbfm.data.samplers import sample_windows
+
+
+def probe_error(mu, ang, fit, score):
+    """Angle error (degrees) of a ridge probe (cos, sin) <- [mu, 1], fitted on `fit`, on `score`."""
+    X = np.concatenate([mu, np.ones((len(mu), 1))], 1)
+    Y = np.stack([np.cos(ang), np.sin(ang)], 1)
+    A = X[fit].T @ X[fit] + 1e-3 * np.eye(X.shape[1])
+    W = np.linalg.solve(A, X[fit].T @ Y[fit])
+    P = X[score] @ W
+    err = np.angle(np.exp(1j * (np.arctan2(P[:, 1], P[:, 0]) - ang[score])))
+    return float(np.degrees(np.abs(err)).mean())
+
+
+def main():
+    p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("--set", nargs="*", default=[])
+    p.add_argument("--seed", type=int, default=0)
+    a = p.parse_args()
+    cfg = Config.preset("antwind", "bfb", "cpu", num_seeds=1).with_overrides(a.set)
+    env = antwind_env(cfg, progress=False)
+    agent = make_agent(cfg, env)
+    ds = load_or_collect_dataset(cfg, env, progress=False)
+    state = agent.init(jax.random.PRNGKey(a.seed))
+    K = cfg.enc_steps
+
+    @jax.jit
+    def pretrain(state, key):
+        return jax.lax.scan(lambda s, k: agent.pretrain_step(s, ds, k), state, jax.random.split(key, K))
+
+    t = time.time()
+    state, m = pretrain(state, jax.random.PRNGKey(a.seed + 1))
+    mse = np.asarray(m["enc_mse"])
+    print(f"pre-training {K} steps: {time.time() - t:.0f}s; enc_mse first/last 200 steps "
+          f"{mse[:200].mean():.4f} / {mse[-200:].mean():.4f}")
+
+    enc = state.params.enc
+    n_ep = ds.num_episodes
+    ep = jnp.arange(n_ep)
+    _, obs, act, nxt = (None,) + sample_windows(jax.random.PRNGKey(5), ds, ep, cfg.context_len)
+    mu = np.asarray(jax.jit(lambda o, a_, n: agent.encode(enc, o, a_, n)[0])(obs, act, nxt))
+    wind = np.asarray(ds.context_id)
+    ang = np.asarray(env.contexts("train").angle)[wind]
+    per = cfg.episodes_per_layout
+    within = np.arange(n_ep) % per
+    fit, score = within < int(0.8 * per), within >= int(0.8 * per)
+    even = wind % 2 == 0
+    print(f"probe angle error (deg, 90 = chance): held-out episodes {probe_error(mu, ang, fit, score):.1f}; "
+          f"held-out winds (fit even, score odd) {probe_error(mu, ang, even, ~even):.1f}")
+
+    # what h buys the predictor: own h vs a random other episode's h (same targets)
+    _, tobs, tact, tnxt = (None,) + sample_windows(jax.random.PRNGKey(6), ds, ep, cfg.context_len)
+    perm = np.random.default_rng(0).permutation(n_ep)
+
+    def pred_mse(h):
+        h_tok = jnp.broadcast_to(h[:, None], tobs.shape[:2] + h.shape[-1:])
+        pred = agent.normalize_obs(tobs) + agent.predictor_net.apply(
+            enc["predictor"], agent.obs_features(tobs), agent.action_features(tact), h_tok)
+        return float(jnp.mean(jnp.sum((pred - agent.normalize_obs(tnxt)) ** 2, -1)))
+
+    own, other = pred_mse(jnp.asarray(mu)), pred_mse(jnp.asarray(mu[perm]))
+    print(f"predictor mse: own h {own:.4f}, another episode's h {other:.4f} (gap {other - own:.4f}); "
+          f"mu spread: mean |mu - mean| {np.linalg.norm(mu - mu.mean(0), axis=1).mean():.3f}")
+
+
+if __name__ == "__main__":
+    main()
