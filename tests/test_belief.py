@@ -101,6 +101,32 @@ def test_discrete_actions_enter_the_encoder_one_hot():
     np.testing.assert_array_equal(np.asarray(tok[:, k:k + 4]), np.eye(4)[[0, 1, 2, 3, 1]])
 
 
+def test_contrastive_loss_matches_a_loop_and_rewards_grouping_by_layout():
+    """enc_contrast's InfoNCE against the formula written out with Python loops; it is
+    lower when h groups windows by layout than when h mixes the layouts."""
+    from zsbfm.agents.belief import BeliefFBAgent
+
+    rng = np.random.default_rng(0)
+    mu, mu_t = rng.normal(size=(6, 3)), rng.normal(size=(6, 3))
+    ctx = np.array([0, 1, 0, 2, 1, 0])
+    expect = 0.0
+    for i in range(6):
+        e = [np.exp(-np.sum((mu[i] - mu_t[j]) ** 2)) for j in range(6)]
+        expect -= np.log(sum(e[j] for j in range(6) if ctx[j] == ctx[i]) / sum(e)) / 6
+    got = BeliefFBAgent.contrastive_loss(jnp.asarray(mu), jnp.asarray(mu_t), jnp.asarray(ctx))
+    np.testing.assert_allclose(float(got), expect, rtol=1e-5)
+
+    centres = 3.0 * np.eye(3)[ctx]                       # one point per layout, far apart
+    grouped = BeliefFBAgent.contrastive_loss(*map(jnp.asarray, (centres, centres, ctx)))
+    mixed = BeliefFBAgent.contrastive_loss(*map(jnp.asarray, (centres, centres[::-1], ctx)))
+    assert float(grouped) < 0.01 < float(mixed)
+
+
+def test_enc_contrast_must_be_non_negative():
+    with pytest.raises(ValueError, match="enc_contrast"):
+        zsbfm.Config.preset("antwind", "bfb", enc_contrast=-1.0)
+
+
 def test_rfb_requires_h_dim_equal_d():
     with pytest.raises(ValueError, match="Config.h_dim=8"):
         zsbfm.Config.preset("fourrooms", "rfb", d=16, h_dim=8)
