@@ -83,6 +83,7 @@ class Config:
     enc_lr: float = 1e-3
     enc_beta: float = 1e-6       # weight of KL(q(h | episode) || N(0, I)) in the encoder loss
     enc_contrast: float = 0.0    # weight of a same-layout InfoNCE on h (agents/belief.py; 0 = paper)
+    enc_cell_tokens: bool = False  # pointmass: tokens also hold the one-hot map cell of s (agents/belief.py)
     enc_steps: int = 4_000       # K: encoder pre-training steps before FB (staged mode)
     enc_batch: int = 16          # episodes (context windows) per encoder batch
     enc_target: str = "context"  # predict the window's own transitions, or another episode's of its layout ("context")
@@ -156,6 +157,9 @@ class Config:
             bad("enc_beta", self.enc_beta, "enc_beta >= 0")
         if self.enc_contrast < 0:
             bad("enc_contrast", self.enc_contrast, "enc_contrast >= 0")
+        if self.enc_cell_tokens and self.env != "pointmass":
+            bad("enc_cell_tokens", self.enc_cell_tokens,
+                f"False for env={self.env!r} (only pointmass has positions in a cell map)")
         if not self.kappa > 0:
             bad("kappa", self.kappa, "kappa > 0")
         if self.algo == "rfb" and self.h_dim not in (0, self.d):

@@ -89,10 +89,17 @@ class BeliefFBAgent(FBAgent):
 
     def tokens(self, obs: Array, action: Array, next_obs: Array) -> Array:
         """One token per transition: [phi(s), a, phi(s'), s' - s] (phi = obs_features,
-        s' - s in normalised coordinates): [..., N, token]."""
+        s' - s in normalised coordinates): [..., N, token].
+
+        With enc_cell_tokens (pointmass), plus the one-hot of s's map cell: the mean-pooled
+        encoder then has the window's cell-visit histogram, the maze's free cells, one linear
+        map away; from raw (x, y) alone it did not find the maze (README, Pointmass).
+        """
         move = self.normalize_obs(next_obs) - self.normalize_obs(obs)
-        return jnp.concatenate([self.obs_features(obs), self.action_features(action),
-                                self.obs_features(next_obs), move], -1)
+        parts = [self.obs_features(obs), self.action_features(action), self.obs_features(next_obs), move]
+        if self.cfg.enc_cell_tokens:
+            parts.append(jax.nn.one_hot(self.env.cell_index(obs), self.env.n_cells))
+        return jnp.concatenate(parts, -1)
 
     def encode(self, enc_params, obs, action, next_obs, mask=None):
         """q(h | transitions): (mu, log_sigma), each [..., h_dim]. obs [..., N, obs_dim]."""

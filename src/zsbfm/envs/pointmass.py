@@ -189,12 +189,18 @@ class PointMass:
     obs_low = (0.0, 0.0)
     obs_high = (SIZE * UNIT, SIZE * UNIT)
     goal_radius = GOAL_RADIUS
+    n_cells = SIZE * SIZE   # cells of the map, border included (Config.enc_cell_tokens)
 
     def __post_init__(self):
         if self.n_train < 1:
             raise ValueError(f"n_train must be >= 1, got {self.n_train}")
         if self.episode_len < 1:
             raise ValueError(f"episode_len must be >= 1, got {self.episode_len}")
+
+    def cell_index(self, obs: Array) -> Array:
+        """Row-major index in [0, n_cells) of the map cell holding each observation [..., 2]."""
+        c = jnp.clip(cell_of(obs), 0, SIZE - 1)
+        return c[..., 1] * SIZE + c[..., 0]
 
     # -- contexts ---------------------------------------------------------------------------
     def contexts(self, split: str) -> MazeContext:

@@ -1,12 +1,15 @@
-"""How much wind the AntWind context encoder recovers, for encoder settings given as --set.
+"""How much of the dynamics context the encoder recovers, for encoder settings given as --set.
 
-    python experiments/fb_diagnostics/antwind_encoder.py [--set enc_steps=4000 pred_hidden=256,256]
+    python experiments/fb_diagnostics/encoder_probe.py [--env antwind] [--set enc_contrast=1 ...]
 
 Trains only f_dyn (the staged pre-training phase, `BeliefFBAgent.pretrain_step`) on the
-cached AntWind dataset, then reads the wind off mu with a linear probe: ridge regression
-of (cos, sin) of the wind angle on mu, fitted on 80 of each train wind's 100 episodes and
-scored on the other 20 (angle error in degrees; 90 = chance), and on whole held-out train
-winds (fit on the even winds, score the odd ones: does h interpolate between winds?).
+preset's dataset (AntWind: the cached one; gridworlds and pointmass: collected here), then
+probes mu of one context window per episode, fitting on 80% of each layout's episodes and
+scoring the other 20%:
+- AntWind: ridge regression of (cos, sin) of the wind angle on mu; the angle error in
+  degrees (90 = chance), also on whole held-out train winds (fit on the even winds, score
+  the odd ones: does h interpolate between winds?).
+- other envs: nearest-centroid accuracy of the layout (chance = 1 / layouts).
 Also prints the predictor's MSE with each episode's own h and with h of a random other
 episode (the gap is what h buys the predictor).
 """
@@ -21,7 +24,9 @@ import numpy as np
 
 from zsbfm.agents import make_agent
 from zsbfm.config import Config
-from zsbfm.data.expert import antwind_env, load_or_collect_dataset
+from zsbfm.data.collect import collect
+from zsbfm.data.expert import load_or_collect_dataset
+from zsbfm.envs import make_env_for
 from zsbfm.data.samplers import sample_windows
 
 
@@ -38,13 +43,18 @@ def probe_error(mu, ang, fit, score):
 
 def main():
     p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("--env", default="antwind", choices=["antwind", "pointmass", "fourrooms", "doors"])
     p.add_argument("--set", nargs="*", default=[])
     p.add_argument("--seed", type=int, default=0)
     a = p.parse_args()
-    cfg = Config.preset("antwind", "bfb", "cpu", num_seeds=1).with_overrides(a.set)
-    env = antwind_env(cfg, progress=False)
+    cfg = Config.preset(a.env, "bfb", "cpu", num_seeds=1).with_overrides(a.set)
+    env = make_env_for(cfg, progress=False)
     agent = make_agent(cfg, env)
-    ds = load_or_collect_dataset(cfg, env, progress=False)
+    if a.env == "antwind":
+        ds = load_or_collect_dataset(cfg, env, progress=False)
+    else:
+        ds = jax.jit(lambda k: collect(env, k, env.contexts("train"), cfg.episodes_per_layout))(
+            jax.random.PRNGKey(a.seed + 100))
     state = agent.init(jax.random.PRNGKey(a.seed))
     K = cfg.enc_steps
 
@@ -63,14 +73,20 @@ def main():
     ep = jnp.arange(n_ep)
     _, obs, act, nxt = (None,) + sample_windows(jax.random.PRNGKey(5), ds, ep, cfg.context_len)
     mu = np.asarray(jax.jit(lambda o, a_, n: agent.encode(enc, o, a_, n)[0])(obs, act, nxt))
-    wind = np.asarray(ds.context_id)
-    ang = np.asarray(env.contexts("train").angle)[wind]
+    layout = np.asarray(ds.context_id)
     per = cfg.episodes_per_layout
     within = np.arange(n_ep) % per
     fit, score = within < int(0.8 * per), within >= int(0.8 * per)
-    even = wind % 2 == 0
-    print(f"probe angle error (deg, 90 = chance): held-out episodes {probe_error(mu, ang, fit, score):.1f}; "
-          f"held-out winds (fit even, score odd) {probe_error(mu, ang, even, ~even):.1f}")
+    if a.env == "antwind":
+        ang = np.asarray(env.contexts("train").angle)[layout]
+        even = layout % 2 == 0
+        print(f"wind probe angle error (deg, 90 = chance): held-out episodes {probe_error(mu, ang, fit, score):.1f}; "
+              f"held-out winds (fit even, score odd) {probe_error(mu, ang, even, ~even):.1f}")
+    else:
+        cents = np.stack([mu[fit & (layout == i)].mean(0) for i in range(cfg.n_train_layouts)])
+        guess = np.linalg.norm(mu[score][:, None] - cents[None], axis=-1).argmin(1)
+        print(f"layout nearest-centroid accuracy on held-out episodes: {np.mean(guess == layout[score]):.3f} "
+              f"(chance {1 / cfg.n_train_layouts:.3f})")
 
     # what h buys the predictor: own h vs a random other episode's h (same targets)
     _, tobs, tact, tnxt = (None,) + sample_windows(jax.random.PRNGKey(6), ds, ep, cfg.context_len)
