@@ -187,3 +187,18 @@ def test_actor_bc_pulls_the_policy_to_the_data_actions():
         dataclasses.replace(cfg, actor_bc=-1.0)
     with pytest.raises(ValueError, match="actor_bc.*discrete"):
         zsbfm.Config.preset("fourrooms", "fb", actor_bc=0.4)
+
+
+def test_cell_tokens_hold_the_map_cell_of_each_state():
+    """enc_cell_tokens: the token's last n_cells entries are the one-hot of the cell
+    floor(y / UNIT) * 8 + floor(x / UNIT), written out by hand; other envs refuse it."""
+    from zsbfm.agents import make_agent
+
+    env = PointMass()
+    agent = make_agent(zsbfm.Config.preset("pointmass", "bfb", enc_cell_tokens=True), env)
+    pos = np.array([[0.5, 0.5], [4.0, 0.1], [31.9, 31.9], [13.0, 27.5]], np.float32)
+    tok = np.asarray(agent.tokens(jnp.asarray(pos), jnp.zeros((4, 2)), jnp.asarray(pos)))
+    expect = [int(y // UNIT) * 8 + int(x // UNIT) for x, y in pos]
+    np.testing.assert_array_equal(tok[:, -env.n_cells:], np.eye(env.n_cells)[expect])
+    with pytest.raises(ValueError, match="enc_cell_tokens"):
+        zsbfm.Config.preset("fourrooms", "bfb", enc_cell_tokens=True)
