@@ -1,0 +1,35 @@
+"""How much a context window can tell about a Pointmass maze: an exact count.
+
+    python experiments/fb_diagnostics/pointmass_ambiguity.py
+
+For 10 behaviour episodes per train maze, the number of train mazes in which every cell
+the window visits is free (the mazes the window is consistent with; 1 = identified), for
+windows of 100 steps (the preset's context) and 250 (a whole episode). Only visits count,
+not collisions, so this bounds the ambiguity from above.
+"""
+import jax
+import numpy as np
+
+import zsbfm
+from zsbfm.data.collect import collect
+from zsbfm.envs import make_env_for
+from zsbfm.envs.pointmass import UNIT
+
+cfg = zsbfm.Config.preset("pointmass", "bfb")
+env = make_env_for(cfg, progress=False)
+ctx = env.contexts("train")
+walls = np.asarray(ctx.walls)                                     # [mazes, 8, 8]
+ds = jax.jit(lambda k: collect(env, k, ctx, 10))(jax.random.PRNGKey(0))
+obs = np.asarray(ds.obs)
+for L in (100, 250):
+    counts, seen = [], []
+    for e in range(obs.shape[0]):
+        c = np.floor(obs[e, :L + 1] / UNIT).astype(int)
+        visited = np.zeros(walls.shape[1:], bool)
+        visited[c[:, 1], c[:, 0]] = True
+        counts.append((~(walls & visited[None]).any((1, 2))).sum())
+        seen.append(visited.sum())
+    counts = np.asarray(counts)
+    print(f"window {L}: {np.mean(seen):.1f} cells visited; consistent train mazes: mean {counts.mean():.1f} "
+          f"of {len(walls)}, median {np.median(counts):.0f}; identified (exactly 1): {np.mean(counts == 1):.2f}; "
+          f"best possible accuracy of a guess among them: {np.mean(1 / counts):.2f}")
