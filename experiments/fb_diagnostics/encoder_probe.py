@@ -71,7 +71,7 @@ def main():
     enc = state.params.enc
     n_ep = ds.num_episodes
     ep = jnp.arange(n_ep)
-    _, obs, act, nxt = (None,) + sample_windows(jax.random.PRNGKey(5), ds, ep, cfg.context_len)
+    obs, act, nxt = sample_windows(jax.random.PRNGKey(5), ds, ep, cfg.context_len)
     mu = np.asarray(jax.jit(lambda o, a_, n: agent.encode(enc, o, a_, n)[0])(obs, act, nxt))
     layout = np.asarray(ds.context_id)
     per = cfg.episodes_per_layout
@@ -89,16 +89,10 @@ def main():
               f"(chance {1 / cfg.n_train_layouts:.3f})")
 
     # what h buys the predictor: own h vs a random other episode's h (same targets)
-    _, tobs, tact, tnxt = (None,) + sample_windows(jax.random.PRNGKey(6), ds, ep, cfg.context_len)
+    target = sample_windows(jax.random.PRNGKey(6), ds, ep, cfg.context_len)
     perm = np.random.default_rng(0).permutation(n_ep)
-
-    def pred_mse(h):
-        h_tok = jnp.broadcast_to(h[:, None], tobs.shape[:2] + h.shape[-1:])
-        pred = agent.normalize_obs(tobs) + agent.predictor_net.apply(
-            enc["predictor"], agent.obs_features(tobs), agent.action_features(tact), h_tok)
-        return float(jnp.mean(jnp.sum((pred - agent.normalize_obs(tnxt)) ** 2, -1)))
-
-    own, other = pred_mse(jnp.asarray(mu)), pred_mse(jnp.asarray(mu[perm]))
+    pred_mse = jax.jit(lambda h: agent.predictor_mse(enc, h, *target))
+    own, other = float(pred_mse(jnp.asarray(mu))), float(pred_mse(jnp.asarray(mu[perm])))
     print(f"predictor mse: own h {own:.4f}, another episode's h {other:.4f} (gap {other - own:.4f}); "
           f"mu spread: mean |mu - mean| {np.linalg.norm(mu - mu.mean(0), axis=1).mean():.3f}")
 

@@ -13,21 +13,19 @@ import numpy as np
 import zsbfm
 from zsbfm.data.collect import collect
 from zsbfm.envs import make_env_for
-from zsbfm.envs.pointmass import UNIT
 
 cfg = zsbfm.Config.preset("pointmass", "bfb")
 env = make_env_for(cfg, progress=False)
 ctx = env.contexts("train")
-walls = np.asarray(ctx.walls)                                     # [mazes, 8, 8]
+walls = np.asarray(ctx.walls).reshape(len(ctx.walls), env.n_cells)   # [mazes, cells], row-major
 ds = jax.jit(lambda k: collect(env, k, ctx, 10))(jax.random.PRNGKey(0))
-obs = np.asarray(ds.obs)
+cells = np.asarray(env.cell_index(ds.obs))                            # [episodes, T + 1]
 for L in (100, 250):
     counts, seen = [], []
-    for e in range(obs.shape[0]):
-        c = np.floor(obs[e, :L + 1] / UNIT).astype(int)
-        visited = np.zeros(walls.shape[1:], bool)
-        visited[c[:, 1], c[:, 0]] = True
-        counts.append((~(walls & visited[None]).any((1, 2))).sum())
+    for e in range(cells.shape[0]):
+        visited = np.zeros(env.n_cells, bool)
+        visited[cells[e, :L + 1]] = True
+        counts.append((~(walls & visited[None]).any(1)).sum())
         seen.append(visited.sum())
     counts = np.asarray(counts)
     print(f"window {L}: {np.mean(seen):.1f} cells visited; consistent train mazes: mean {counts.mean():.1f} "

@@ -158,20 +158,25 @@ class BeliefFBAgent(FBAgent):
         """
         mu, log_sigma = self.encode(enc, *window)
         h = mu + jnp.exp(log_sigma) * jax.random.normal(key, mu.shape)
-        obs, action, next_obs = target
-        h_tok = jnp.broadcast_to(h[:, None], obs.shape[:2] + h.shape[-1:])
-        # g predicts s' as s + displacement (normalised units): the same regression of s'.
-        pred = self.normalize_obs(obs) + self.predictor_net.apply(
-            enc["predictor"], self.obs_features(obs), self.action_features(action), h_tok)
-        mse = jnp.mean(jnp.sum((pred - self.normalize_obs(next_obs)) ** 2, -1))
+        mse = self.predictor_mse(enc, h, *target)
         kl = jnp.mean(0.5 * jnp.sum(mu**2 + jnp.exp(2 * log_sigma) - 1.0 - 2.0 * log_sigma, -1))
         loss = mse + self.cfg.enc_beta * kl
         metrics = {"enc_mse": mse, "enc_kl": kl, "h_norm": jnp.mean(jnp.linalg.norm(mu, axis=-1))}
         if self.cfg.enc_contrast > 0:
-            nce = self.contrastive_loss(mu, self.encode(enc, *target)[0], context)
+            # target is window (enc_target="episode", joint mode): its mu is already here
+            mu_target = mu if target is window else self.encode(enc, *target)[0]
+            nce = self.contrastive_loss(mu, mu_target, context)
             loss = loss + self.cfg.enc_contrast * nce
             metrics["enc_nce"] = nce
         return loss, (metrics, mu)
+
+    def predictor_mse(self, enc, h: Array, obs: Array, action: Array, next_obs: Array) -> Array:
+        """mean_{i,t} |g(s_it, a_it, h_i) - s'_it|^2 in normalised units; h [n, h_dim], obs [n, L, ...]."""
+        h_tok = jnp.broadcast_to(h[:, None], obs.shape[:2] + h.shape[-1:])
+        # g predicts s' as s + displacement (normalised units): the same regression of s'.
+        pred = self.normalize_obs(obs) + self.predictor_net.apply(
+            enc["predictor"], self.obs_features(obs), self.action_features(action), h_tok)
+        return jnp.mean(jnp.sum((pred - self.normalize_obs(next_obs)) ** 2, -1))
 
     @staticmethod
     def contrastive_loss(mu: Array, mu_target: Array, context: Array) -> Array:
@@ -197,14 +202,15 @@ class BeliefFBAgent(FBAgent):
         """
         k_win, k_other, k_tw, k_eps = jax.random.split(key, 4)
         ep, *window = self.sample_episode_windows(k_win, dataset, self.cfg.enc_batch)
+        window = tuple(window)
         if self.cfg.enc_target == "context":
             per = self.cfg.episodes_per_layout  # episodes are context-major
             other = dataset.context_id[ep] * per + jax.random.randint(k_other, ep.shape, 0, per)
-            target = sample_windows(k_tw, dataset, other, self.cfg.context_len)
+            target = tuple(sample_windows(k_tw, dataset, other, self.cfg.context_len))
         else:
             target = window
         grads, (metrics, _) = jax.grad(self.encoder_loss, has_aux=True)(
-            state.params.enc, tuple(window), tuple(target), k_eps, dataset.context_id[ep])
+            state.params.enc, window, target, k_eps, dataset.context_id[ep])
         updates, enc_opt_state = self.enc_optimizer.update(grads, state.enc_opt_state, state.params.enc)
         enc = optax.apply_updates(state.params.enc, updates)
         params = state.params.replace(enc=enc)
