@@ -8,7 +8,8 @@ probes mu of one context window per episode, fitting on 80% of each layout's epi
 scoring the other 20%:
 - AntWind: ridge regression of (cos, sin) of the wind angle on mu; the angle error in
   degrees (90 = chance), also on whole held-out train winds (fit on the even winds, score
-  the odd ones: does h interpolate between winds?).
+  the odd ones: does h interpolate between winds?), and on fresh episodes of the 5 test
+  winds with the probe fitted on all train winds (does h extrapolate to the unseen quadrant?).
 - other envs: nearest-centroid accuracy of the layout (chance = 1 / layouts).
 Also prints the predictor's MSE with each episode's own h and with h of a random other
 episode (the gap is what h buys the predictor).
@@ -82,6 +83,16 @@ def main():
         even = layout % 2 == 0
         print(f"wind probe angle error (deg, 90 = chance): held-out episodes {probe_error(mu, ang, fit, score):.1f}; "
               f"held-out winds (fit even, score odd) {probe_error(mu, ang, even, ~even):.1f}")
+        # the unseen quadrant: fresh behaviour episodes under the 5 test winds, the probe fitted
+        # on every train episode (are never-seen winds "in place" on the train winds' circle?)
+        tds = jax.jit(lambda k: collect(env, k, env.contexts("test"), 8))(jax.random.PRNGKey(a.seed + 200))
+        t_obs, t_act, t_nxt = sample_windows(jax.random.PRNGKey(7), tds, jnp.arange(tds.num_episodes), cfg.context_len)
+        mu_t = np.asarray(jax.jit(lambda o, a_, n: agent.encode(enc, o, a_, n)[0])(t_obs, t_act, t_nxt))
+        ang_t = np.asarray(env.contexts("test").angle)[np.asarray(tds.context_id)]
+        both = np.concatenate([mu, mu_t]), np.concatenate([ang, ang_t])
+        is_test = np.arange(len(both[0])) >= len(mu)
+        print(f"test winds (unseen quadrant, probe fitted on all train episodes): angle error "
+              f"{probe_error(*both, ~is_test, is_test):.1f} deg")
     else:
         cents = np.stack([mu[fit & (layout == i)].mean(0) for i in range(cfg.n_train_layouts)])
         guess = np.linalg.norm(mu[score][:, None] - cents[None], axis=-1).argmin(1)

@@ -84,6 +84,7 @@ class Config:
     enc_beta: float = 1e-6       # weight of KL(q(h | episode) || N(0, I)) in the encoder loss
     enc_contrast: float = 0.0    # weight of a same-layout InfoNCE on h (agents/belief.py; 0 = paper)
     enc_cell_tokens: bool = False  # pointmass: tokens also hold the one-hot map cell of s (agents/belief.py)
+    enc_pred_horizon: int = 1    # g regresses the mean of s_{t+1..t+k}, k = this (1 = the paper's s_{t+1})
     enc_steps: int = 4_000       # K: encoder pre-training steps before FB (staged mode)
     enc_batch: int = 16          # episodes (context windows) per encoder batch
     enc_target: str = "context"  # predict the window's own transitions, or another episode's of its layout ("context")
@@ -160,6 +161,10 @@ class Config:
         if self.enc_cell_tokens and self.env != "pointmass":
             bad("enc_cell_tokens", self.enc_cell_tokens,
                 f"False for env={self.env!r} (only pointmass has positions in a cell map)")
+        if (not isinstance(self.enc_pred_horizon, int) or isinstance(self.enc_pred_horizon, bool)
+                or not 1 <= self.enc_pred_horizon <= self.context_len):
+            bad("enc_pred_horizon", self.enc_pred_horizon,
+                f"an integer in 1..context_len={self.context_len} (steps ahead within a window)")
         if not self.kappa > 0:
             bad("kappa", self.kappa, "kappa > 0")
         if self.algo == "rfb" and self.h_dim not in (0, self.d):
