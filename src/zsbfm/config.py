@@ -20,6 +20,7 @@ BELIEF_ALGOS = ("bfb", "rfb")          # infer h with the context encoder
 ENCODER_MODES = ("staged", "joint")
 SIZES = ("cpu", "paper")
 TARGET_POLICIES = ("greedy", "boltzmann", "uniform")
+LR_SCHEDULES = ("constant", "cosine")
 H_CONDS = ("concat", "film")           # how the context h enters F (nets/fb.py)
 EPISODE_LEN = {"doors": 100, "fourrooms": 100, "pointmass": 250, "antwind": 256}
 DATA_POLICIES = ("expert", "random")
@@ -56,6 +57,7 @@ class Config:
     f_hidden: tuple[int, ...] = (256,)        # F trunk hidden layers
     b_hidden: tuple[int, ...] = (128, 128)    # B hidden layers
     lr: float = 1e-3
+    lr_schedule: str = "constant"             # FB/actor/feature optimiser: "constant" | "cosine" (to 0 at the last step)
     batch_size: int = 256
     gamma: float = 0.95                       # paper: 0.99 (see README: CPU budget)
     tau: float = 0.05                         # Polyak rate of the target networks (paper: 0.05)
@@ -139,6 +141,8 @@ class Config:
         if self.env == "antwind" and self.n_train_layouts != ANTWIND_TRAIN_WINDS:
             bad("n_train_layouts", self.n_train_layouts,
                 f"{ANTWIND_TRAIN_WINDS} for antwind (the fixed train winds: 20 directions, first three quadrants)")
+        if self.lr_schedule not in LR_SCHEDULES:
+            bad("lr_schedule", self.lr_schedule, f"one of {LR_SCHEDULES}")
         if self.target_policy not in TARGET_POLICIES:
             bad("target_policy", self.target_policy, f"one of {TARGET_POLICIES}")
         for f in ("num_seeds", "n_train_layouts", "episodes_per_layout", "episode_len",
@@ -238,6 +242,12 @@ class Config:
         if self.algo == "oracle":
             return self.n_train_layouts
         return (self.h_dim or self.d) if self.algo in BELIEF_ALGOS else 0
+
+    @property
+    def fb_steps(self) -> int:
+        """Updates of the main optimiser: steps, less the encoder pre-training of staged belief runs."""
+        staged = self.algo in BELIEF_ALGOS and self.encoder_mode == "staged"
+        return self.steps - (self.enc_steps if staged else 0)
 
     @property
     def num_chunks(self) -> int:

@@ -136,7 +136,10 @@ class FBAgent:
 
     @property
     def optimizer(self) -> optax.GradientTransformation:
-        return optax.adam(self.cfg.lr)
+        """Adam at lr, constant or cosine-decayed to 0 over the run's fb_steps updates."""
+        c = self.cfg
+        lr = c.lr if c.lr_schedule == "constant" else optax.cosine_decay_schedule(c.lr, c.fb_steps)
+        return optax.adam(lr)
 
     def normalize_obs(self, obs: Array) -> Array:
         """Map observations from [obs_low, obs_high] to [0, 1].
