@@ -147,11 +147,13 @@ class Config:
             bad("target_policy", self.target_policy, f"one of {TARGET_POLICIES}")
         for f in ("num_seeds", "n_train_layouts", "episodes_per_layout", "episode_len",
                   "context_len", "d", "f_pre_out", "batch_size", "steps", "chunk_steps",
-                  "eval_episode_len", "enc_embed", "enc_heads", "enc_layers", "enc_mlp",
+                  "eval_episode_len", "enc_embed", "enc_heads", "enc_mlp",
                   "enc_steps", "enc_batch", "windows_per_episode"):
             v = getattr(self, f)
             if not isinstance(v, int) or isinstance(v, bool) or v <= 0:
                 bad(f, v, "a positive integer")
+        if not isinstance(self.enc_layers, int) or isinstance(self.enc_layers, bool) or self.enc_layers < 0:
+            bad("enc_layers", self.enc_layers, "a non-negative integer (0: per-token embedding, mean-pooled)")
         if not isinstance(self.h_dim, int) or self.h_dim < 0:
             bad("h_dim", self.h_dim, "a non-negative integer (0 means d)")
         if self.enc_embed % self.enc_heads:
