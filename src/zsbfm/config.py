@@ -22,6 +22,7 @@ SIZES = ("cpu", "paper")
 TARGET_POLICIES = ("greedy", "boltzmann", "uniform")
 LR_SCHEDULES = ("constant", "cosine")
 H_CONDS = ("concat", "film")           # how the context h enters F (nets/fb.py)
+F_ARCHS = ("reference", "normed_trunk")  # F's layer layout (nets/fb.py)
 EPISODE_LEN = {"doors": 100, "fourrooms": 100, "pointmass": 250, "antwind": 256}
 DATA_POLICIES = ("expert", "random")
 ANTWIND_TRAIN_WINDS = 15               # 20 directions; the first three quadrants train
@@ -55,6 +56,7 @@ class Config:
     f_pre_hidden: tuple[int, ...] = (128,)    # preprocessor hidden layers
     f_pre_out: int = 128                      # preprocessor output width
     f_hidden: tuple[int, ...] = (256,)        # F trunk hidden layers
+    f_arch: str = "reference"                 # F's layers: "reference" | "normed_trunk" (nets/fb.py)
     b_hidden: tuple[int, ...] = (128, 128)    # B hidden layers
     lr: float = 1e-3
     lr_schedule: str = "constant"             # FB/actor/feature optimiser: "constant" | "cosine" (to 0 at the last step)
@@ -130,6 +132,8 @@ class Config:
             bad("enc_target", self.enc_target, "'episode' or 'context'")
         if self.encoder_mode not in ENCODER_MODES:
             bad("encoder_mode", self.encoder_mode, f"one of {ENCODER_MODES}")
+        if self.f_arch not in F_ARCHS:
+            bad("f_arch", self.f_arch, f"one of {F_ARCHS}")
         if self.h_cond not in H_CONDS:
             bad("h_cond", self.h_cond, f"one of {H_CONDS}")
         if self.data_policy not in DATA_POLICIES:
@@ -293,6 +297,7 @@ class Config:
         unknown = set(d) - set(fields)
         if unknown:
             raise ValueError(f"unknown Config fields {sorted(unknown)}")
+        d = {**LEGACY_DEFAULTS, **d}
         return Config(**{k: tuple(v) if isinstance(v, list) else v for k, v in d.items()})
 
     def with_overrides(self, overrides: list[str] | tuple[str, ...]) -> "Config":
@@ -328,6 +333,9 @@ _PAPER_DISCRETE = dict(d=100, f_pre_hidden=(1024,), f_pre_out=512, f_hidden=(102
                        tau=0.05, steps=1_000_000, chunk_steps=10_000,
                        feat_hidden=(512, 512))
 
+# Fields whose default changed: a saved config without the field ran with the old value.
+LEGACY_DEFAULTS: dict[str, Any] = {"f_arch": "normed_trunk"}
+
 _BELIEF_PRESETS: dict[str, dict[str, Any]] = {
     "cpu": dict(enc_steps=4_000, steps=14_000),
     "paper": dict(enc_steps=10_000, steps=1_010_000, enc_embed=128, enc_mlp=256,
@@ -345,11 +353,14 @@ _BELIEF_ENV_PRESETS: dict[tuple[str, str], dict[str, Any]] = {
 _PRESETS: dict[tuple[str, str], dict[str, Any]] = {
     ("fourrooms", "cpu"): dict(n_train_layouts=20, episodes_per_layout=500),
     ("fourrooms", "paper"): dict(n_train_layouts=20, episodes_per_layout=500, **_PAPER_DISCRETE),
-    ("doors", "cpu"): dict(n_train_layouts=20, episodes_per_layout=500),
+    # f_arch="normed_trunk" (F before f_arch existed) where the README's numbers were measured
+    # with it and not yet rerun with the reference layout
+    ("doors", "cpu"): dict(n_train_layouts=20, episodes_per_layout=500, f_arch="normed_trunk"),
     ("doors", "paper"): dict(n_train_layouts=20, episodes_per_layout=500, **_PAPER_DISCRETE),
     # 30 train mazes x 133 episodes x 250 steps = 1e6 transitions; contexts are 100-step windows
     ("pointmass", "cpu"): dict(n_train_layouts=30, episodes_per_layout=133, episode_len=250,
-                               eval_episode_len=250, context_len=100, obs_encoding="raw", gamma=0.98),
+                               eval_episode_len=250, context_len=100, obs_encoding="raw", gamma=0.98,
+                               f_arch="normed_trunk"),
     # 15 train winds x 100 expert episodes x 256 steps = 384k transitions; contexts are
     # 100-step windows; returns over 256-step episodes
     ("antwind", "cpu"): dict(n_train_layouts=15, episodes_per_layout=100, episode_len=256,
@@ -358,7 +369,7 @@ _PRESETS: dict[tuple[str, str], dict[str, Any]] = {
                              # TD3+BC actor (agents/fb.py): the pure -Q actor pushed saturated,
                              # costly actions off the expert data (FB, 3 seeds: return -124 / -131
                              # train / test with actor_bc=0, 224 / 197 with 0.4; README)
-                             actor_bc=0.4),
+                             actor_bc=0.4, f_arch="normed_trunk"),
     ("antwind", "paper"): dict(n_train_layouts=15, episodes_per_layout=1000, episode_len=256,
                                eval_episode_len=256, context_len=100, obs_encoding="raw",
                                expert_steps=3_000_000, d=150, f_pre_hidden=(1024,), f_pre_out=512,

@@ -3,6 +3,14 @@
 F(s, a, w) with w the task input (z for FB, [z; h] for the belief flavours):
 two preprocessors embed (s) or (s, a) and (s, w) separately, their outputs are
 concatenated and an MLP maps them to d (continuous actions) or |A| x d (discrete).
+Config.f_arch:
+  "reference": the FB reference architecture (Meta's controllable_agent ForwardMap):
+               preprocessor = Linear -> LayerNorm -> tanh, then Linear -> ReLU to pre_out;
+               trunk = Linear -> ReLU layers, then a linear output.
+  "normed_trunk": this project's F before f_arch existed: linear preprocessor outputs and a
+               trunk whose first layer is Linear -> LayerNorm -> tanh again (saved runs
+               without the field load with it). On one Four-Rooms layout it scored lower
+               (README, Four-Rooms).
 B(s) is an MLP to d, projected onto the sphere of radius sqrt(d).
 
 How the context h (the last h_dim entries of w) enters F (Config.h_cond), one place for
@@ -26,7 +34,7 @@ from typing import Sequence
 import flax.linen as nn
 import jax.numpy as jnp
 
-from zsbfm.config import H_CONDS
+from zsbfm.config import F_ARCHS, H_CONDS
 from zsbfm.nets.mlp import MLP
 from zsbfm.ops.sphere import project_to_sphere
 
@@ -47,7 +55,7 @@ class FiLM(nn.Module):
 
 class FiLMMLP(nn.Module):
     """nets.mlp.MLP's layers (Linear -> LayerNorm -> tanh, then Linear -> ReLU, then a
-    linear output) with every hidden pre-activation FiLM-modulated by c (`FiLM`).
+    linear output; the same norm_first / out_relu options) with every hidden pre-activation FiLM-modulated by c (`FiLM`).
 
     x: [..., in]; c: [..., c_dim] -> [..., out]. At initialisation it computes exactly
     what MLP with the same Dense/LayerNorm parameters computes.
@@ -55,17 +63,22 @@ class FiLMMLP(nn.Module):
 
     hidden: Sequence[int]
     out: int | None = None
+    norm_first: bool = True
+    out_relu: bool = False
 
     @nn.compact
     def __call__(self, x, c):
         for i, h in enumerate(self.hidden):
             x = nn.Dense(h)(x)
-            if i == 0:
+            first = i == 0 and self.norm_first
+            if first:
                 x = nn.LayerNorm()(x)
             x = FiLM(name=f"film_{i}")(x, c)
-            x = jnp.tanh(x) if i == 0 else nn.relu(x)
+            x = jnp.tanh(x) if first else nn.relu(x)
         if self.out is not None:
             x = nn.Dense(self.out)(x)
+            if self.out_relu:
+                x = nn.relu(x)
         return x
 
 
@@ -85,9 +98,12 @@ class ForwardNet(nn.Module):
     h_dim: int = 0
     h_in_sa: bool = False
     h_cond: str = "concat"
+    arch: str = "reference"
 
     @nn.compact
     def __call__(self, obs, task, action=None):
+        if self.arch not in F_ARCHS:
+            raise ValueError(f"arch={self.arch!r} is invalid: expected one of {F_ARCHS}")
         if self.h_cond not in H_CONDS:
             raise ValueError(f"h_cond={self.h_cond!r} is invalid: expected one of {H_CONDS}")
         h = task[..., task.shape[-1] - self.h_dim:]
@@ -96,14 +112,16 @@ class ForwardNet(nn.Module):
             sa = jnp.concatenate([sa, h], -1)
         sw = jnp.concatenate([obs, task], -1)
         out = self.d * self.n_actions if self.n_actions else self.d
+        ref = self.arch == "reference"
+        pre, trunk = dict(out_relu=ref), dict(norm_first=not ref)
         if self.h_cond == "film" and self.h_dim:
-            e_sa = FiLMMLP(self.pre_hidden, self.pre_out, name="pre_sa")(sa, h)
-            e_sw = FiLMMLP(self.pre_hidden, self.pre_out, name="pre_sw")(sw, h)
-            y = FiLMMLP(self.hidden, out, name="trunk")(jnp.concatenate([e_sa, e_sw], -1), h)
+            e_sa = FiLMMLP(self.pre_hidden, self.pre_out, name="pre_sa", **pre)(sa, h)
+            e_sw = FiLMMLP(self.pre_hidden, self.pre_out, name="pre_sw", **pre)(sw, h)
+            y = FiLMMLP(self.hidden, out, name="trunk", **trunk)(jnp.concatenate([e_sa, e_sw], -1), h)
         else:  # plain MLPs: the parameter tree of runs saved before h_cond existed
-            e_sa = MLP(self.pre_hidden, self.pre_out, name="pre_sa")(sa)
-            e_sw = MLP(self.pre_hidden, self.pre_out, name="pre_sw")(sw)
-            y = MLP(self.hidden, out, name="trunk")(jnp.concatenate([e_sa, e_sw], -1))
+            e_sa = MLP(self.pre_hidden, self.pre_out, name="pre_sa", **pre)(sa)
+            e_sw = MLP(self.pre_hidden, self.pre_out, name="pre_sw", **pre)(sw)
+            y = MLP(self.hidden, out, name="trunk", **trunk)(jnp.concatenate([e_sa, e_sw], -1))
         if self.n_actions:
             return y.reshape(*y.shape[:-1], self.n_actions, self.d)
         return y
@@ -120,13 +138,14 @@ class TwinForward(nn.Module):
     h_dim: int = 0
     h_in_sa: bool = False
     h_cond: str = "concat"
+    arch: str = "reference"
 
     @nn.compact
     def __call__(self, obs, task, action=None):
         twin = nn.vmap(ForwardNet, variable_axes={"params": 0}, split_rngs={"params": True},
                        in_axes=None, out_axes=0, axis_size=2)
         return twin(self.d, self.n_actions, self.pre_hidden, self.pre_out, self.hidden,
-                    self.h_dim, self.h_in_sa, self.h_cond, name="F")(obs, task, action)
+                    self.h_dim, self.h_in_sa, self.h_cond, self.arch, name="F")(obs, task, action)
 
 
 class BackwardNet(nn.Module):

@@ -9,20 +9,25 @@ import jax.numpy as jnp
 
 
 class MLP(nn.Module):
-    """Dense layers with ReLU; the first layer is Linear -> LayerNorm -> tanh.
+    """Dense layers with ReLU; the first layer is Linear -> LayerNorm -> tanh (`norm_first`).
 
     The LayerNorm/tanh input layer standardises raw inputs (coordinates, task vectors),
-    as in the FB reference architecture. `out=None` returns the last hidden layer.
+    as in the FB reference architecture. `out=None` returns the last hidden layer;
+    `out_relu` puts a ReLU on the output layer too (the reference FB preprocessors).
     """
 
     hidden: Sequence[int]
     out: int | None = None
+    norm_first: bool = True
+    out_relu: bool = False
 
     @nn.compact
     def __call__(self, x):
         for i, h in enumerate(self.hidden):
             x = nn.Dense(h)(x)
-            x = jnp.tanh(nn.LayerNorm()(x)) if i == 0 else nn.relu(x)
+            x = jnp.tanh(nn.LayerNorm()(x)) if i == 0 and self.norm_first else nn.relu(x)
         if self.out is not None:
             x = nn.Dense(self.out)(x)
+            if self.out_relu:
+                x = nn.relu(x)
         return x
