@@ -104,3 +104,42 @@ def test_h_cond_is_validated_and_reaches_the_agent():
     assert not any("film_0" in "/".join(k) for k in flatten_dict(fb.init(jax.random.PRNGKey(0)).params.F))
     task = Task(z=jnp.ones((1, cfg.d)), h=jnp.asarray([[0.0, 1.0]]))
     assert agent.q_values(state.params, jnp.asarray([[1.0, 1.0]]), task).shape == (1, env.n_actions)
+
+
+@pytest.mark.parametrize("arch", ["reference", "normed_trunk"])
+def test_f_arch_matches_its_layers_written_out(arch):
+    """F's layer layout against numpy: "reference" (controllable_agent's ForwardMap) is
+    pre = relu(W2 tanh(LN(W1 x))), trunk = W4 relu(W3 [pre_sa; pre_sw]); "normed_trunk"
+    has linear preprocessor outputs and LN -> tanh on the trunk's first layer."""
+    net = ForwardNet(d=D, n_actions=4, pre_hidden=(16,), pre_out=16, hidden=(32,), arch=arch)
+    obs, z, _, _ = inputs()
+    params = net.init(jax.random.PRNGKey(1), obs, z)["params"]
+    dense = lambda p, x: x @ np.asarray(p["kernel"]) + np.asarray(p["bias"])
+
+    def ln(p, x):
+        x = (x - x.mean(-1, keepdims=True)) / np.sqrt(x.var(-1, keepdims=True) + 1e-6)
+        return x * np.asarray(p["scale"]) + np.asarray(p["bias"])
+
+    relu = lambda x: np.maximum(x, 0)
+    ref = arch == "reference"
+
+    def pre(p, x):
+        y = dense(p["Dense_1"], np.tanh(ln(p["LayerNorm_0"], dense(p["Dense_0"], x))))
+        return relu(y) if ref else y
+
+    o, w = np.asarray(obs), np.asarray(z)
+    e = np.concatenate([pre(params["pre_sa"], o), pre(params["pre_sw"], np.concatenate([o, w], -1))], -1)
+    t = params["trunk"]
+    u = dense(t["Dense_0"], e)
+    hid = relu(u) if ref else np.tanh(ln(t["LayerNorm_0"], u))
+    want = dense(t["Dense_1"], hid).reshape(len(o), 4, D)
+    np.testing.assert_allclose(np.asarray(net.apply({"params": params}, obs, z)), want, rtol=1e-4, atol=1e-4)
+
+
+def test_saved_configs_without_f_arch_load_as_normed_trunk():
+    d = zsbfm.Config.preset("fourrooms", "fb").to_dict()
+    assert d["f_arch"] == "reference"
+    del d["f_arch"]
+    assert zsbfm.Config.from_dict(d).f_arch == "normed_trunk"
+    with pytest.raises(ValueError, match="Config.f_arch='mlp'"):
+        zsbfm.Config.preset("fourrooms", "fb", f_arch="mlp")
