@@ -140,6 +140,11 @@ def test_saved_configs_without_f_arch_load_as_normed_trunk():
     d = zsbfm.Config.preset("fourrooms", "fb").to_dict()
     assert d["f_arch"] == "reference"
     del d["f_arch"]
-    assert zsbfm.Config.from_dict(d).f_arch == "normed_trunk"
+    legacy = zsbfm.Config.from_dict(d)
+    assert legacy.f_arch == "normed_trunk"
+    env = zsbfm.make_env("fourrooms")
+    for cfg, has_norm in ((legacy, True), (zsbfm.Config.from_dict({**d, "f_arch": "reference"}), False)):
+        trunk = make_agent(cfg, env).init(jax.random.PRNGKey(0)).params.F["params"]["F"]["trunk"]
+        assert ("LayerNorm_0" in trunk) == has_norm  # the agent builds F with cfg.f_arch
     with pytest.raises(ValueError, match="Config.f_arch='mlp'"):
         zsbfm.Config.preset("fourrooms", "fb", f_arch="mlp")

@@ -124,7 +124,7 @@ class FBAgent:
     def F_net(self) -> TwinForward:
         c = self.cfg
         return TwinForward(c.d, self.env.n_actions, c.f_pre_hidden, c.f_pre_out, c.f_hidden,
-                           h_dim=self.h_dim, h_in_sa=c.h_in_sa, h_cond=c.h_cond)
+                           h_dim=self.h_dim, h_in_sa=c.h_in_sa, h_cond=c.h_cond, arch=c.f_arch)
 
     @property
     def actor_net(self) -> Actor:
