@@ -9,8 +9,8 @@ Config.f_arch:
                trunk = Linear -> ReLU layers, then a linear output.
   "normed_trunk": this project's F before f_arch existed: linear preprocessor outputs and a
                trunk whose first layer is Linear -> LayerNorm -> tanh again (saved runs
-               without the field load with it). On one Four-Rooms layout it scored lower
-               (README, Four-Rooms).
+               without the field load with it). On one Four-Rooms layout it made the
+               worse F (README, Presets).
 B(s) is an MLP to d, projected onto the sphere of radius sqrt(d).
 
 How the context h (the last h_dim entries of w) enters F (Config.h_cond), one place for
@@ -55,7 +55,8 @@ class FiLM(nn.Module):
 
 class FiLMMLP(nn.Module):
     """nets.mlp.MLP's layers (Linear -> LayerNorm -> tanh, then Linear -> ReLU, then a
-    linear output; the same norm_first / out_relu options) with every hidden pre-activation FiLM-modulated by c (`FiLM`).
+    linear output; the same norm_first / out_relu options) with every hidden
+    pre-activation FiLM-modulated by c (`FiLM`).
 
     x: [..., in]; c: [..., c_dim] -> [..., out]. At initialisation it computes exactly
     what MLP with the same Dense/LayerNorm parameters computes.
