@@ -72,8 +72,8 @@ def main():
     enc = state.params.enc
     n_ep = ds.num_episodes
     ep = jnp.arange(n_ep)
-    obs, act, nxt = sample_windows(jax.random.PRNGKey(5), ds, ep, cfg.context_len)
-    mu = np.asarray(jax.jit(lambda o, a_, n: agent.encode(enc, o, a_, n)[0])(obs, act, nxt))
+    encode_mu = jax.jit(lambda o, a_, n: agent.encode(enc, o, a_, n)[0])
+    mu = np.asarray(encode_mu(*sample_windows(jax.random.PRNGKey(5), ds, ep, cfg.context_len)))
     layout = np.asarray(ds.context_id)
     per = cfg.episodes_per_layout
     within = np.arange(n_ep) % per
@@ -86,8 +86,8 @@ def main():
         # the unseen quadrant: fresh behaviour episodes under the 5 test winds, the probe fitted
         # on every train episode (are never-seen winds "in place" on the train winds' circle?)
         tds = jax.jit(lambda k: collect(env, k, env.contexts("test"), 8))(jax.random.PRNGKey(a.seed + 200))
-        t_obs, t_act, t_nxt = sample_windows(jax.random.PRNGKey(7), tds, jnp.arange(tds.num_episodes), cfg.context_len)
-        mu_t = np.asarray(jax.jit(lambda o, a_, n: agent.encode(enc, o, a_, n)[0])(t_obs, t_act, t_nxt))
+        mu_t = np.asarray(encode_mu(*sample_windows(jax.random.PRNGKey(7), tds, jnp.arange(tds.num_episodes),
+                                                    cfg.context_len)))
         ang_t = np.asarray(env.contexts("test").angle)[np.asarray(tds.context_id)]
         both = np.concatenate([mu, mu_t]), np.concatenate([ang, ang_t])
         is_test = np.arange(len(both[0])) >= len(mu)
