@@ -10,7 +10,8 @@ from flax.traverse_util import flatten_dict, unflatten_dict
 
 import zsbfm
 from zsbfm.agents import Task, make_agent
-from zsbfm.nets.fb import FiLM, ForwardNet
+from zsbfm.nets.fb import ForwardNet
+from zsbfm.nets.mlp import FiLM
 
 D, H, OBS = 8, 3, 5
 

@@ -29,6 +29,7 @@ discrete and continuous F:
 
 from __future__ import annotations
 
+import dataclasses
 from typing import Sequence
 
 import flax.linen as nn
@@ -37,50 +38,6 @@ import jax.numpy as jnp
 from zsbfm.config import F_ARCHS, H_CONDS
 from zsbfm.nets.mlp import MLP
 from zsbfm.ops.sphere import project_to_sphere
-
-
-class FiLM(nn.Module):
-    """u <- (1 + gamma(c)) * u + beta(c) with [gamma; beta] = W c + b, zero-initialised.
-
-    u: [..., width]; c: [..., c_dim] (same leading axes). Identity at initialisation.
-    """
-
-    @nn.compact
-    def __call__(self, u, c):
-        gb = nn.Dense(2 * u.shape[-1], kernel_init=nn.initializers.zeros,
-                      bias_init=nn.initializers.zeros)(c)
-        gamma, beta = jnp.split(gb, 2, axis=-1)
-        return (1.0 + gamma) * u + beta
-
-
-class FiLMMLP(nn.Module):
-    """nets.mlp.MLP's layers (Linear -> LayerNorm -> tanh, then Linear -> ReLU, then a
-    linear output; the same norm_first / out_relu options) with every hidden
-    pre-activation FiLM-modulated by c (`FiLM`).
-
-    x: [..., in]; c: [..., c_dim] -> [..., out]. At initialisation it computes exactly
-    what MLP with the same Dense/LayerNorm parameters computes.
-    """
-
-    hidden: Sequence[int]
-    out: int | None = None
-    norm_first: bool = True
-    out_relu: bool = False
-
-    @nn.compact
-    def __call__(self, x, c):
-        for i, h in enumerate(self.hidden):
-            x = nn.Dense(h)(x)
-            first = i == 0 and self.norm_first
-            if first:
-                x = nn.LayerNorm()(x)
-            x = FiLM(name=f"film_{i}")(x, c)
-            x = jnp.tanh(x) if first else nn.relu(x)
-        if self.out is not None:
-            x = nn.Dense(self.out)(x)
-            if self.out_relu:
-                x = nn.relu(x)
-        return x
 
 
 class ForwardNet(nn.Module):
@@ -115,38 +72,26 @@ class ForwardNet(nn.Module):
         out = self.d * self.n_actions if self.n_actions else self.d
         ref = self.arch == "reference"
         pre, trunk = dict(out_relu=ref), dict(norm_first=not ref)
-        if self.h_cond == "film" and self.h_dim:
-            e_sa = FiLMMLP(self.pre_hidden, self.pre_out, name="pre_sa", **pre)(sa, h)
-            e_sw = FiLMMLP(self.pre_hidden, self.pre_out, name="pre_sw", **pre)(sw, h)
-            y = FiLMMLP(self.hidden, out, name="trunk", **trunk)(jnp.concatenate([e_sa, e_sw], -1), h)
-        else:  # plain MLPs: the parameter tree of runs saved before h_cond existed
-            e_sa = MLP(self.pre_hidden, self.pre_out, name="pre_sa", **pre)(sa)
-            e_sw = MLP(self.pre_hidden, self.pre_out, name="pre_sw", **pre)(sw)
-            y = MLP(self.hidden, out, name="trunk", **trunk)(jnp.concatenate([e_sa, e_sw], -1))
+        film = h if self.h_cond == "film" and self.h_dim else None  # None: no film_<i> params
+        e_sa = MLP(self.pre_hidden, self.pre_out, name="pre_sa", **pre)(sa, film)
+        e_sw = MLP(self.pre_hidden, self.pre_out, name="pre_sw", **pre)(sw, film)
+        y = MLP(self.hidden, out, name="trunk", **trunk)(jnp.concatenate([e_sa, e_sw], -1), film)
         if self.n_actions:
             return y.reshape(*y.shape[:-1], self.n_actions, self.d)
         return y
 
 
-class TwinForward(nn.Module):
-    """Two independent ForwardNets evaluated together: output has a leading axis of 2."""
-
-    d: int
-    n_actions: int
-    pre_hidden: Sequence[int]
-    pre_out: int
-    hidden: Sequence[int]
-    h_dim: int = 0
-    h_in_sa: bool = False
-    h_cond: str = "concat"
-    arch: str = "reference"
+class TwinForward(ForwardNet):
+    """Two independent ForwardNets (same fields) evaluated together: output has a leading
+    axis of 2; parameters under "F" with a leading axis of 2."""
 
     @nn.compact
     def __call__(self, obs, task, action=None):
         twin = nn.vmap(ForwardNet, variable_axes={"params": 0}, split_rngs={"params": True},
                        in_axes=None, out_axes=0, axis_size=2)
-        return twin(self.d, self.n_actions, self.pre_hidden, self.pre_out, self.hidden,
-                    self.h_dim, self.h_in_sa, self.h_cond, self.arch, name="F")(obs, task, action)
+        fields = {f.name: getattr(self, f.name) for f in dataclasses.fields(ForwardNet)
+                  if f.name not in ("parent", "name")}
+        return twin(**fields, name="F")(obs, task, action)
 
 
 class BackwardNet(nn.Module):
