@@ -115,9 +115,9 @@ def run_table(env: str, algos, seeds: int, runs_dir: str, overrides, size: str =
     return rows
 
 
-def markdown(env: str, rows: dict, seeds: int, size: str) -> str:
+def markdown(env: str, rows: dict, seeds: int, size: str, metric: str) -> str:
+    """The table; metric: "success" or "return" (evaluate.metric_of, the env's own)."""
     paper = PAPER.get(env, {})
-    metric = metric_of(zsbfm.make_env(env))  # "success" or "return", the env's own
     fmt = ".0f" if metric == "return" else ".2f"
     lines = [f"| {env} ({seeds} seeds, {size} preset) | train {metric} | test {metric} | paper train / test "
              f"| wall time (train + eval) |", "|---|---|---|---|---|"]
@@ -136,13 +136,13 @@ def markdown(env: str, rows: dict, seeds: int, size: str) -> str:
     return "\n".join(lines)
 
 
-def bar_chart(env: str, rows: dict, path: str) -> None:
+def bar_chart(env: str, rows: dict, path: str, metric: str) -> None:
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    returns = metric_of(zsbfm.make_env(env)) == "return"
+    returns = metric == "return"
     algos = [a for a in rows if a != "oracle"]
     x = np.arange(len(algos))
     fig, axes = plt.subplots(1, 2, figsize=(10, 3.6), sharey=True)
@@ -184,10 +184,11 @@ def main():
     with open(stem + ".json", "w") as f:
         json.dump({"env": a.env, "seeds": a.seeds, "size": a.size, "overrides": a.set, "methods": rows,
                    "paper": PAPER.get(a.env, {})}, f, indent=2)
-    table = markdown(a.env, rows, a.seeds, a.size)
+    metric = metric_of(zsbfm.make_env(a.env))
+    table = markdown(a.env, rows, a.seeds, a.size, metric)
     with open(stem + ".md", "w") as f:
         f.write(table + "\n")
-    bar_chart(a.env, rows, stem + ".png")
+    bar_chart(a.env, rows, stem + ".png", metric)
     print(table)
     print(f"wrote {stem}.json, {stem}.md, {stem}.png in {time.time() - t0:.0f} s")
 

@@ -151,9 +151,9 @@ def test_table_harness_writes_results_and_reads_finished_runs_back(tmp_path, cap
     again = table.run_table("fourrooms", ["random", "lap"], 2, runs, tiny)
     assert "read back" in capsys.readouterr().out
     assert again == rows
-    md = table.markdown("fourrooms", rows, 2, "cpu")
+    md = table.markdown("fourrooms", rows, 2, "cpu", "success")
     assert "| Laplacian |" in md and "0.20 / 0.10" in md  # the paper's LAP values beside ours
-    table.bar_chart("fourrooms", rows, str(tmp_path / "fourrooms.png"))
+    table.bar_chart("fourrooms", rows, str(tmp_path / "fourrooms.png"), "success")
     assert (tmp_path / "fourrooms.png").stat().st_size > 0
 
 
