@@ -170,7 +170,7 @@ def test_short_encoder_pretraining_separates_fourrooms_layouts():
 
     n_layouts = 4
     cfg = zsbfm.Config.preset("fourrooms", "bfb", n_train_layouts=n_layouts, episodes_per_layout=200,
-                              enc_target="context", enc_steps=6000, steps=7000, chunk_steps=500,
+                              enc_target="context", enc_steps=5000, steps=6000, chunk_steps=500,
                               enc_embed=32, enc_mlp=64, pred_hidden=(64, 64), d=16)
     env = zsbfm.make_env("fourrooms", n_train=n_layouts)
     agent = make_agent(cfg, env)
