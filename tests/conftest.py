@@ -1,10 +1,26 @@
+import atexit
 import os
+import shutil
+import tempfile
 
 os.environ.setdefault("JAX_PLATFORMS", "cpu")
 
+import jax  # noqa: E402
 import pytest  # noqa: E402
 
 import zsbfm  # noqa: E402
+
+# Many tests train the same tiny program again (another seed, a resumed run, a second
+# directory). Each zsbfm.train builds a new closure, so jit traces it again; XLA's
+# persistent cache then returns the executable of an identical program instead of
+# compiling it anew (~20 s -> ~3 s per repeat on the 2-core CPU). Tracing is unchanged, so
+# the trace-count tests still count. A fresh directory per session: nothing carries over
+# between test runs.
+_CACHE_DIR = tempfile.mkdtemp(prefix="zsbfm-xla-cache-")
+atexit.register(shutil.rmtree, _CACHE_DIR, ignore_errors=True)
+jax.config.update("jax_compilation_cache_dir", _CACHE_DIR)
+jax.config.update("jax_persistent_cache_min_compile_time_secs", 0)
+jax.config.update("jax_persistent_cache_min_entry_size_bytes", -1)
 
 
 def tiny_config(tmp_path, algo="fb", env="fourrooms", **overrides):

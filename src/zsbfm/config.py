@@ -352,10 +352,10 @@ _BELIEF_ENV_PRESETS: dict[tuple[str, str], dict[str, Any]] = {
 _PRESETS: dict[tuple[str, str], dict[str, Any]] = {
     ("fourrooms", "cpu"): dict(n_train_layouts=20, episodes_per_layout=500),
     ("fourrooms", "paper"): dict(n_train_layouts=20, episodes_per_layout=500, **_PAPER_DISCRETE),
+    ("doors", "cpu"): dict(n_train_layouts=20, episodes_per_layout=500),
+    ("doors", "paper"): dict(n_train_layouts=20, episodes_per_layout=500, **_PAPER_DISCRETE),
     # f_arch="normed_trunk" (F before f_arch existed) where the README's numbers were measured
     # with it and not yet rerun with the reference layout
-    ("doors", "cpu"): dict(n_train_layouts=20, episodes_per_layout=500, f_arch="normed_trunk"),
-    ("doors", "paper"): dict(n_train_layouts=20, episodes_per_layout=500, **_PAPER_DISCRETE),
     # 30 train mazes x 133 episodes x 250 steps = 1e6 transitions; contexts are 100-step windows
     ("pointmass", "cpu"): dict(n_train_layouts=30, episodes_per_layout=133, episode_len=250,
                                eval_episode_len=250, context_len=100, obs_encoding="raw", gamma=0.98,
