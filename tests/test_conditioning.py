@@ -91,6 +91,31 @@ def test_film_modulation_is_scale_and_shift_of_h():
     np.testing.assert_allclose(layer.apply(p, u, c), expect, rtol=1e-6)
 
 
+@pytest.mark.parametrize("n_actions,action_dim", [(4, 0), (0, 2)])
+def test_outer_is_a_per_context_state_embedding(n_actions, action_dim):
+    """h_cond="outer" with a one-hot h = e_k is the concat network whose pre_sa first-layer
+    weights of the state are W_x + W_k, W_k the rows of the outer product's block k:
+    a separate linear embedding of the state per context."""
+    kw = dict(d=D, n_actions=n_actions, pre_hidden=(16,), pre_out=16, hidden=(32,), h_dim=H, h_in_sa=True)
+    outer, concat = ForwardNet(**kw, h_cond="outer"), ForwardNet(**kw, h_cond="concat")
+    obs, z, h, a = inputs(action_dim=action_dim)
+    w = jnp.concatenate([z, h], -1)
+    p = flatten_dict(outer.init(jax.random.PRNGKey(1), obs, w, a))
+    k0 = ("params", "pre_sa", "Dense_0", "kernel")
+    n_sa = OBS + action_dim                      # pre_sa input: [s; a], h, then s (x) h
+    kernel = p[k0]
+    assert kernel.shape[0] == n_sa + H + OBS * H
+    W_sa, W_h, W_outer = kernel[:n_sa], kernel[n_sa:n_sa + H], kernel[n_sa + H:].reshape(OBS, H, -1)
+    for k in range(H):
+        q = dict(p)
+        W_s = W_sa.at[:OBS].add(W_outer[:, k])
+        q[k0] = jnp.concatenate([W_s, W_h], 0)
+        rows = np.flatnonzero(np.asarray(h[:, k]) == 1)
+        got = outer.apply(unflatten_dict(p), obs[rows], w[rows], None if a is None else a[rows])
+        want = concat.apply(unflatten_dict(q), obs[rows], w[rows], None if a is None else a[rows])
+        np.testing.assert_allclose(got, want, rtol=1e-5, atol=1e-5)
+
+
 def test_h_cond_is_validated_and_reaches_the_agent():
     with pytest.raises(ValueError, match=r"Config.h_cond='gate'.*'concat', 'film'"):
         zsbfm.Config.preset("fourrooms", "oracle", h_cond="gate")

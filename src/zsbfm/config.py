@@ -21,7 +21,7 @@ ENCODER_MODES = ("staged", "joint")
 SIZES = ("cpu", "paper")
 TARGET_POLICIES = ("greedy", "boltzmann", "uniform")
 LR_SCHEDULES = ("constant", "cosine")
-H_CONDS = ("concat", "film")           # how the context h enters F (nets/fb.py)
+H_CONDS = ("concat", "film", "outer")           # how the context h enters F (nets/fb.py)
 F_ARCHS = ("reference", "normed_trunk")  # F's layer layout (nets/fb.py)
 EPISODE_LEN = {"doors": 100, "fourrooms": 100, "pointmass": 250, "antwind": 256}
 DATA_POLICIES = ("expert", "random")
@@ -78,7 +78,7 @@ class Config:
     # --- Belief-FB / Rotation-FB (ignored by fb) -------------------------------------------
     h_dim: int = 0               # dimension of the context h; 0 -> d (rfb needs h_dim = d)
     h_in_sa: bool = False        # h also enters F's (s, a) preprocessor (paper: only with z)
-    h_cond: str = "concat"       # how h conditions F: "concat" (input only) | "film" (nets/fb.py)
+    h_cond: str = "concat"       # how h conditions F: "concat" (input only) | "film" | "outer" (nets/fb.py)
     enc_embed: int = 32          # transformer width
     enc_heads: int = 4
     enc_layers: int = 2

@@ -25,6 +25,11 @@ discrete and continuous F:
             exactly the "concat" network (identity modulation). With a one-hot h (oracle)
             this is a per-layout scale and shift of every hidden unit; before the ReLU it
             can switch units on and off per context.
+  "outer":  as "concat", and pre_sa's input also holds the outer product of the state
+            features and h, flattened: [..., obs_feat * h_dim]. Its first layer is then
+            W(h) x = W_0 x + sum_k h_k W_k x, a context-dependent embedding of the state
+            (with a one-hot layout id, one embedding table per layout; with onehot (x, y)
+            features, per-layout embeddings of each row and column).
 """
 
 from __future__ import annotations
@@ -68,6 +73,9 @@ class ForwardNet(nn.Module):
         sa = obs if action is None else jnp.concatenate([obs, action], -1)
         if self.h_in_sa and self.h_dim:
             sa = jnp.concatenate([sa, h], -1)
+        if self.h_cond == "outer" and self.h_dim:
+            outer = obs[..., :, None] * h[..., None, :]
+            sa = jnp.concatenate([sa, outer.reshape(*outer.shape[:-2], -1)], -1)
         sw = jnp.concatenate([obs, task], -1)
         out = self.d * self.n_actions if self.n_actions else self.d
         ref = self.arch == "reference"
