@@ -29,11 +29,13 @@ train: $(STAMP)
 	$(PY) -m zsbfm train --env $(ENV) --algo $(ALGO) --seeds $(SEEDS) --size $(SIZE) $(ARGS)
 
 # pytest exits 5 when it collects no tests; make treats any non-zero exit as failure.
+# -n auto: one pytest-xdist worker per core; the suite is mostly XLA compiles, which are
+# single-threaded, so two workers on 2 cores take ~0.6x the time of one.
 test: $(STAMP)
-	$(PY) -m pytest -q
+	$(PY) -m pytest -q -n auto
 
 test-all: $(STAMP)
-	$(PY) -m pytest -q -m ""
+	$(PY) -m pytest -q -n auto -m ""
 
 bench: $(STAMP)
 	$(PY) benchmarks/throughput.py

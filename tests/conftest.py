@@ -15,9 +15,14 @@ import zsbfm  # noqa: E402
 # persistent cache then returns the executable of an identical program instead of
 # compiling it anew (~20 s -> ~3 s per repeat on the 2-core CPU). Tracing is unchanged, so
 # the trace-count tests still count. A fresh directory per session: nothing carries over
-# between test runs.
-_CACHE_DIR = tempfile.mkdtemp(prefix="zsbfm-xla-cache-")
-atexit.register(shutil.rmtree, _CACHE_DIR, ignore_errors=True)
+# between test runs. `make test` runs pytest-xdist workers (`-n auto`): the controller makes
+# the directory and the workers inherit it through the environment, so one worker's compile
+# serves the other; only the process that made it removes it.
+_CACHE_DIR = os.environ.get("ZSBFM_TEST_XLA_CACHE")
+if _CACHE_DIR is None:
+    _CACHE_DIR = tempfile.mkdtemp(prefix="zsbfm-xla-cache-")
+    os.environ["ZSBFM_TEST_XLA_CACHE"] = _CACHE_DIR
+    atexit.register(shutil.rmtree, _CACHE_DIR, ignore_errors=True)
 jax.config.update("jax_compilation_cache_dir", _CACHE_DIR)
 jax.config.update("jax_persistent_cache_min_compile_time_secs", 0)
 jax.config.update("jax_persistent_cache_min_entry_size_bytes", -1)

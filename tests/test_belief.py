@@ -163,14 +163,19 @@ def test_rfb_requires_h_dim_equal_d():
         zsbfm.Config.preset("fourrooms", "rfb", d=16, h_dim=8)
 
 
-def test_short_encoder_pretraining_separates_fourrooms_layouts():
-    """After a short pre-training (seconds), fresh episodes of the same layout sit closer in
-    h than episodes of different layouts, and nearest neighbours find the layout."""
+@pytest.mark.parametrize("contrast, enc_steps, episodes", [
+    (1.0, 600, 50),                                             # + the same-layout InfoNCE term
+    pytest.param(0.0, 5000, 200, marks=pytest.mark.slow),       # the paper's loss alone: ~3 min
+])
+def test_short_encoder_pretraining_separates_fourrooms_layouts(contrast, enc_steps, episodes):
+    """After a short pre-training, fresh episodes of the same layout sit closer in h than
+    episodes of different layouts, and nearest neighbours find the layout."""
     from zsbfm.data import collect
 
     n_layouts = 4
-    cfg = zsbfm.Config.preset("fourrooms", "bfb", n_train_layouts=n_layouts, episodes_per_layout=200,
-                              enc_target="context", enc_steps=5000, steps=6000, chunk_steps=500,
+    cfg = zsbfm.Config.preset("fourrooms", "bfb", n_train_layouts=n_layouts, episodes_per_layout=episodes,
+                              enc_target="context", enc_contrast=contrast, enc_steps=enc_steps,
+                              steps=enc_steps + 1000, chunk_steps=100,
                               enc_embed=32, enc_mlp=64, pred_hidden=(64, 64), d=16)
     env = zsbfm.make_env("fourrooms", n_train=n_layouts)
     agent = make_agent(cfg, env)
@@ -202,14 +207,15 @@ def test_staged_phases_touch_only_their_own_parameters():
     env = zsbfm.make_env("fourrooms", n_train=2)
     agent = make_agent(cfg, env)
     ds = collect(env, jax.random.PRNGKey(0), env.contexts("train"), 4)
-    s0 = agent.init(jax.random.PRNGKey(0))
+    s0 = jax.jit(agent.init)(jax.random.PRNGKey(0))  # compiled once: eager init costs ~15 s here
     same = lambda a, b: all(np.array_equal(x, y) for x, y in
                             zip(jax.tree_util.tree_leaves(a), jax.tree_util.tree_leaves(b)))
-    s1, m1 = agent.update(s0, ds, jax.random.PRNGKey(1), jnp.int32(3))        # encoder phase
+    update = jax.jit(agent.update)
+    s1, m1 = update(s0, ds, jax.random.PRNGKey(1), jnp.int32(3))              # encoder phase
     assert same(s0.params.F, s1.params.F) and same(s0.params.B, s1.params.B)
     assert not same(s0.params.enc["encoder"], s1.params.enc["encoder"])
     assert np.isfinite(m1["enc_mse"]) and np.isnan(m1["fb_loss"])
-    s2, m2 = agent.update(s1, ds, jax.random.PRNGKey(2), jnp.int32(1000))     # first FB step
+    s2, m2 = update(s1, ds, jax.random.PRNGKey(2), jnp.int32(1000))           # first FB step
     assert same(s1.params.enc["encoder"], s2.params.enc["encoder"])
     assert not same(s1.params.F, s2.params.F)
     assert np.isfinite(m2["fb_loss"]) and np.isnan(m2["enc_mse"])

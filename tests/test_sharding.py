@@ -106,7 +106,10 @@ def multiprocess_run(tmp_path, data_parallel: int, n: int = 2) -> list[dict]:
     return outs
 
 
-@pytest.mark.parametrize("data_parallel", [1, pytest.param(2, marks=pytest.mark.slow)])
+# Both slow (two processes compiling at once, ~90 s on 2 cores): `make test-all`. The default
+# run keeps the single-process data-parallel test above.
+@pytest.mark.slow
+@pytest.mark.parametrize("data_parallel", [1, 2])
 def test_two_processes_train_together_like_one(tmp_path, reference, data_parallel):
     """Two processes (jax.distributed on localhost, gloo), one CPU device each: the seeds
     (data_parallel=1) or each seed's batch (data_parallel=2) split across the processes."""
