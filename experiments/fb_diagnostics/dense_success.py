@@ -1,5 +1,7 @@
 """Dense goal-reaching score of a saved run: from the eval start, every free cell as a goal,
-on every train layout (and test layouts). Greedy rollouts, 100 steps. Seed-averaged.
+on every train layout (and test layouts, at most 20 of each). Greedy rollouts of 100 steps
+on the gridworlds; on pointmass the goals are the free cells' centres (world units) and the
+rollouts are the evaluation's own length (250 steps). Seed-averaged.
 
     python experiments/fb_diagnostics/dense_success.py [--swap-context] runs/<name> [...]
 
@@ -16,8 +18,13 @@ for path in [a for a in sys.argv[1:] if a != "--swap-context"]:
     run = zsbfm.load(path); cfg = run.cfg
     env = make_env(cfg.env, n_train=cfg.n_train_layouts, episode_len=cfg.episode_len)
     agent = make_agent(cfg, env)
-    S = env.size
-    cells = jnp.asarray([(x, y) for y in range(S) for x in range(S)], jnp.float32)
+    if cfg.env == "pointmass":
+        from zsbfm.envs.pointmass import SIZE as S, UNIT
+        cells = (jnp.asarray([(x, y) for y in range(S) for x in range(S)], jnp.float32) + 0.5) * UNIT
+        length = cfg.eval_episode_len
+    else:
+        S, length = env.size, 100
+        cells = jnp.asarray([(x, y) for y in range(S) for x in range(S)], jnp.float32)
     out = {}
     for split in ("train", "test"):
         ctxs = env.contexts(split)
@@ -25,10 +32,10 @@ for path in [a for a in sys.argv[1:] if a != "--swap-context"]:
 
         def one(params, ctx, ctx_h, k):
             context = context_episode(env, k, ctx_h, cfg.context_len)
-            ok, _ = jax.vmap(lambda g: goal_rollout(agent, env, params, k, ctx, context, g, 100))(cells)
+            ok, _ = jax.vmap(lambda g: goal_rollout(agent, env, params, k, ctx, context, g, length))(cells)
             free = ~ctx.walls.reshape(-1)
             start = env.eval_start(ctx)
-            free = free & jnp.any(cells != start, -1)
+            free = free & jnp.any(jnp.abs(cells - start) > 1e-3, -1)
             return jnp.sum(ok * free) / jnp.sum(free)
 
         f = jax.jit(jax.vmap(jax.vmap(one, (None, 0, 0, 0)), (0, None, None, None)))
