@@ -1,9 +1,10 @@
 """Reference returns on AntWind: the wind-aware expert behind the data, and random actions.
 
-    python experiments/antwind_expert.py [--episodes 4]
+    python experiments/antwind_expert.py [--episodes 4] [--set expert_steps=1000000 ...]
 
 Uses the CPU preset's cached expert (trained first if missing, like `make data
-ENV=antwind`). For every train and test wind, `--episodes` 256-step episodes of: the
+ENV=antwind`); `--set` overrides Config fields (another expert is trained and cached
+under its own digest). For every train and test wind, `--episodes` 256-step episodes of: the
 expert without noise, the expert with the data's noise (the behaviour policy), and
 uniformly random actions. The expert *sees the wind* (it is an upper reference, not a
 zero-shot method). Writes results/antwind_expert.json.
@@ -28,8 +29,9 @@ def main():
     p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--episodes", type=int, default=4)
     p.add_argument("--out", default="results/antwind_expert.json")
+    p.add_argument("--set", nargs="*", default=[], help="Config overrides (field=value), e.g. expert_steps=1000000")
     a = p.parse_args()
-    cfg = Config.preset("antwind")
+    cfg = Config.preset("antwind").with_overrides(a.set)
     env = make_env_for(cfg)
     policies = {"expert (no noise)": dataclasses.replace(env, behaviour=dataclasses.replace(env.behaviour, noise=0.0)),
                 f"expert + noise {cfg.expert_noise} (behaviour)": env,
