@@ -47,7 +47,7 @@ from zsbfm.nets.mlp import MLP
 class ExpertSettings:
     """TD3 settings for the wind-conditioned expert (CPU sizes by default)."""
 
-    num_timesteps: int = 300_000   # env steps, over all parallel envs
+    num_timesteps: int = 1_000_000  # env steps, over all parallel envs
     num_envs: int = 64
     updates_per_iter: int = 8      # gradient steps per parallel env step (of num_envs envs)
     batch_size: int = 256
