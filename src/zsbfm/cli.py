@@ -120,6 +120,35 @@ def collect(env: str = "fourrooms", n_train: int = 0, episodes_per_layout: int =
     print(f"{ds.num_transitions} transitions in {time.time() - t:.2f}s -> {out}")
 
 
+def sweep(env: str = "fourrooms", algo: str = "fb", seeds: int = 2, size: str = "cpu",
+          name: str = "", runs_dir: str = "runs", no_resume: bool = False,
+          grid: tuple[str, ...] = (), set: tuple[str, ...] = ()) -> None:
+    """Train every combination of a grid of settings x seeds, vmapped in one compiled program
+    per group of shape-changing values; writes runs/<name>/sweep.{json,md,png}.
+
+    Args:
+        env: environment: doors | fourrooms | pointmass | antwind.
+        algo: algorithm: fb | bfb | rfb | oracle | hilp | lap | random.
+        seeds: seeds per grid point.
+        size: preset sizes: cpu | paper.
+        name: sweep name (default sweep-<env>-<algo>); output in <runs_dir>/<name>/.
+        runs_dir: where runs are written.
+        no_resume: start afresh even if checkpoints of this sweep exist.
+        grid: field=v1,v2,... per swept field, e.g. --grid lr=1e-4,3e-4 tau=0.01,0.05;
+            a tuple field's alternatives are separated by '/', e.g. f_hidden=256/512,512.
+        set: Config overrides applied to every point, as in train.
+    """
+    from zsbfm.config import Config
+    from zsbfm.sweep import parse_grid
+    from zsbfm.sweep import sweep as run_sweep
+
+    cfg = Config.preset(env, algo, size, num_seeds=seeds, name=name or f"sweep-{env}-{algo}",
+                        runs_dir=runs_dir).with_overrides(set)
+    result = run_sweep(cfg, parse_grid(cfg, grid), resume=not no_resume)
+    print(result.table())
+    print(f"->  {result.path}")
+
+
 def _print_results(run) -> None:
     import numpy as np
 
@@ -127,13 +156,17 @@ def _print_results(run) -> None:
     for split in ("train", "test"):
         v = np.asarray(r[split])
         print(f"{split:5s} {r.get('metric', 'success')}: {v.mean():.3f} +- {v.std():.3f}  per seed {np.round(v, 3).tolist()}")
+    for protocol, scores in r.get("protocols", {}).items():
+        print(f"  protocol {protocol:12s} " + "  ".join(
+            f"{split} {np.mean(v):.3f}" for split, v in scores.items()))
     print(f"wall time: {r['wall_time_s']}  ->  {os.path.join(run.cfg.runs_dir, run.cfg.run_name)}")
 
 
 def main(argv=None) -> None:
     try:
         tyro.extras.subcommand_cli_from_dict(
-            {"train": train, "evaluate": evaluate, "collect": collect}, args=argv)
+            {"train": train, "sweep": sweep, "evaluate": evaluate, "collect": collect}, args=argv,
+            prog="python -m zsbfm")
     except ValueError as e:  # configuration errors: one clear line, no traceback
         print(f"error: {e}", file=sys.stderr)
         sys.exit(2)

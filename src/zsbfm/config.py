@@ -21,6 +21,13 @@ ENCODER_MODES = ("staged", "joint")
 SIZES = ("cpu", "paper")
 TARGET_POLICIES = ("greedy", "boltzmann", "uniform")
 LR_SCHEDULES = ("constant", "cosine")
+SPLUS = ("batch", "states", "exact")    # the s+ estimator of the FB loss (agents/fb.py)
+# Float settings a vmapped sweep can vary inside one compiled program (zsbfm.sweep): each is
+# only ever used as a number in the traced code (no Python branch reads it). Any other field
+# changes shapes or control flow, so each of its values compiles a program of its own.
+SWEEPABLE = ("lr", "lr_B", "tau", "gamma", "temperature", "ortho_coef", "z_mix", "clip_norm",
+             "kappa", "enc_lr", "enc_beta", "feat_tau", "feat_gamma", "hilp_expectile",
+             "hilp_p_traj_goal", "target_noise", "target_noise_clip")
 H_CONDS = ("concat", "film", "outer")  # how the context h enters F (nets/fb.py)
 F_ARCHS = ("reference", "normed_trunk")  # F's layer layout (nets/fb.py)
 EPISODE_LEN = {"doors": 100, "fourrooms": 100, "pointmass": 250, "antwind": 256}
@@ -60,6 +67,7 @@ class Config:
     f_hidden: tuple[int, ...] = (256,)        # F trunk hidden layers
     f_arch: str = "reference"                 # F's layers: "reference" | "normed_trunk" (nets/fb.py)
     b_hidden: tuple[int, ...] = (128, 128)    # B hidden layers
+    f_heads: int = 2                          # independent F heads: 2 = twin F (min for the policy), 1 = single
     lr: float = 1e-3
     lr_schedule: str = "constant"             # FB/actor/feature optimiser: "constant" | "cosine" (to 0 at the last step)
     batch_size: int = 256
@@ -70,6 +78,13 @@ class Config:
     twin_target: str = "mean"                 # combine the twin target measures: "mean" | "min"
     target_policy: str = "greedy"             # "greedy" | "boltzmann" | "uniform"
     temperature: float = 1.0                  # Boltzmann target-policy temperature
+    # s+ side of the off-diagonal and orthonormality terms (agents/fb.py FBAgent.loss):
+    # "batch" (the batch's next states, i != j) | "states" (splus_batch independent dataset
+    # states) | "exact" (every state of a finite-state env, weighted by its data frequency)
+    splus: str = "batch"
+    splus_batch: int = 1024
+    clip_norm: float = 0.0                    # global gradient-norm clip of F/B/actor (0: none)
+    lr_B: float = 0.0                         # B's learning rate (0: lr)
 
     # --- continuous actions (pointmass): TD3-style actor ------------------------------------
     actor_hidden: tuple[int, ...] = (256, 256)
@@ -115,6 +130,8 @@ class Config:
 
     # --- evaluation ------------------------------------------------------------------------
     eval_episode_len: int = 100
+    eval_every: int = 0          # chunks between learning-curve evaluations (0: only at the end)
+    eval_protocols: str = "all"  # "all": every protocol of the env (paper, dense, ...) | "official"
 
     def __post_init__(self):
         def bad(field, value, allowed):
@@ -147,6 +164,19 @@ class Config:
         if self.env == "antwind" and self.n_train_layouts != ANTWIND_TRAIN_WINDS:
             bad("n_train_layouts", self.n_train_layouts,
                 f"{ANTWIND_TRAIN_WINDS} for antwind (the fixed train winds: 20 directions, first three quadrants)")
+        if not isinstance(self.eval_every, int) or isinstance(self.eval_every, bool) or self.eval_every < 0:
+            bad("eval_every", self.eval_every, "a non-negative integer (chunks; 0: evaluate only at the end)")
+        if self.eval_protocols not in ("all", "official"):
+            bad("eval_protocols", self.eval_protocols, "'all' or 'official'")
+        if self.splus not in SPLUS:
+            bad("splus", self.splus, f"one of {SPLUS}")
+        if self.splus == "exact" and self.env in CONTINUOUS_ENVS:
+            bad("splus", self.splus, f"'batch' or 'states' for the continuous env {self.env!r} "
+                "('exact' sums over a finite state set)")
+        if not self.clip_norm >= 0:
+            bad("clip_norm", self.clip_norm, "clip_norm >= 0 (0: no clipping)")
+        if not self.lr_B >= 0:
+            bad("lr_B", self.lr_B, "lr_B >= 0 (0: the same as lr)")
         if self.lr_schedule not in LR_SCHEDULES:
             bad("lr_schedule", self.lr_schedule, f"one of {LR_SCHEDULES}")
         if self.target_policy not in TARGET_POLICIES:
@@ -154,7 +184,8 @@ class Config:
         for f in ("num_seeds", "n_train_layouts", "episodes_per_layout", "episode_len",
                   "context_len", "d", "f_pre_out", "batch_size", "steps", "chunk_steps",
                   "eval_episode_len", "enc_embed", "enc_heads", "enc_mlp",
-                  "enc_steps", "enc_batch", "windows_per_episode", "enc_pred_horizon"):
+                  "enc_steps", "enc_batch", "windows_per_episode", "enc_pred_horizon", "splus_batch",
+                  "f_heads"):
             v = getattr(self, f)
             if not isinstance(v, int) or isinstance(v, bool) or v <= 0:
                 bad(f, v, "a positive integer")
@@ -288,6 +319,18 @@ class Config:
             base.update(steps=base.get("chunk_steps", 1_000))
         base.update(overrides)
         return Config(**base)
+
+    def with_traced(self, values: dict) -> "Config":
+        """A copy with the scalar fields in `values` set to (traced) arrays, without
+        validation: for the inside of a vmapped sweep, whose every value was validated as a
+        concrete Config first (zsbfm.sweep). Only `SWEEPABLE` fields may be set."""
+        bad = sorted(set(values) - set(SWEEPABLE))
+        if bad:
+            raise ValueError(f"fields {bad} cannot be traced: the sweepable fields are {SWEEPABLE}")
+        new = object.__new__(Config)
+        for f in dataclasses.fields(self):
+            object.__setattr__(new, f.name, values.get(f.name, getattr(self, f.name)))
+        return new
 
     def to_dict(self) -> dict:
         return dataclasses.asdict(self)

@@ -28,11 +28,13 @@ def context_episode(env, key, ctx, length: int) -> Context:
     return Context(obs=obs, action=action, layout=ctx)
 
 
-def goal_rollout(agent, env, params, key, ctx, context: Context, goal, length: int):
-    """Greedy episode towards `goal` from env.eval_start(ctx). Returns (success, obs [T+1, d])."""
+def goal_rollout(agent, env, params, key, ctx, context: Context, goal, length: int, start=None):
+    """Greedy episode towards `goal` from `start` (default env.eval_start(ctx)).
+    Returns (success, obs [T+1, d])."""
     task = agent.goal_task(params, goal, context)
     policy = lambda k, obs: agent.act(params, obs, task, k)
-    obs, _, reward = rollout(env, key, ctx, policy, length, goal=goal, start=env.eval_start(ctx))
+    start = env.eval_start(ctx) if start is None else start
+    obs, _, reward = rollout(env, key, ctx, policy, length, goal=goal, start=start)
     return jnp.any(reward > 0), obs
 
 
@@ -84,6 +86,45 @@ def evaluate_params(agent, env, params, key, contexts, goals, length: int, conte
     return jax.vmap(one_context)(jax.random.split(key, n), contexts, goals)
 
 
+def protocols_of(env) -> tuple[str, ...]:
+    """The evaluation protocols of an environment, the official one first: its
+    `eval_protocols` for goal reaching, ("return",) for a reward task."""
+    if metric_of(env) == "return":
+        return ("return",)
+    return tuple(getattr(env, "eval_protocols", ("paper",)))
+
+
+def evaluate_protocol(agent, env, params, key, contexts, protocol: str, length: int,
+                      context_len: int, reward_obs=None):
+    """Scores of one parameter set under one protocol (jittable): (score float32[n_contexts,
+    G], valid bool[n_contexts, G]), the score a success (0/1) or, for "return", the return.
+
+    The tasks (starts, goals, which count) come from env.eval_tasks(ctx, protocol, key);
+    the context episode and rollout keys are drawn as in `evaluate_params`, so the
+    official protocol gives exactly its scores."""
+    if protocol == "return":
+        r = evaluate_params(agent, env, params, key, contexts, None, length, context_len, reward_obs)
+        return r.astype(jnp.float32), jnp.ones(r.shape, bool)
+    n = num_contexts(contexts)
+
+    def one_context(k, ctx):
+        k_ctx, k_roll = jax.random.split(k)
+        context = context_episode(env, k_ctx, ctx, context_len)
+        starts, goals, valid = env.eval_tasks(ctx, protocol, jax.random.fold_in(k, 7))
+        keys = jax.random.split(k_roll, goals.shape[0])
+        success, _ = jax.vmap(lambda kk, g, st: goal_rollout(agent, env, params, kk, ctx, context, g, length, st))(
+            keys, goals, starts)
+        return success.astype(jnp.float32), valid
+
+    return jax.vmap(one_context)(jax.random.split(key, n), contexts)
+
+
+def protocol_score(score, valid):
+    """Mean score over the valid tasks of each layout, then over layouts: [..., n_ctx, G] -> [...]."""
+    per_layout = jnp.sum(score * valid, -1) / jnp.maximum(jnp.sum(valid, -1), 1)
+    return jnp.mean(per_layout, -1)
+
+
 def default_goals(env, contexts):
     """env.eval_goals of every context: float32[n_contexts, n_goals, obs_dim] (None for
     environments scored by return)."""
@@ -110,32 +151,58 @@ def split_results(success) -> dict:
             "per_goal": s.mean(1).tolist()}
 
 
-def evaluate(run, contexts=None, goals=None, key=None, split: str = "test"):
+def evaluate(run, contexts=None, goals=None, key=None, split: str = "test", protocol: str | None = None):
     """Evaluate every seed of a trained `Run` zero-shot.
 
     contexts: stacked contexts (default: env.contexts(split)); goals: float32[n_contexts,
     n_goals, obs_dim] (default: the environment's evaluation goals). Returns success
     bool[seeds, n_contexts, n_goals], or returns float32[seeds, n_contexts, 1] for antwind.
+
+    key: None (default) draws each seed's context episodes and rollouts exactly as the
+    run's own evaluation did (`zsbfm.train.eval_key` of the seed's key, then the split's
+    key), so with the default contexts and goals this reproduces run.results[split];
+    a key draws them afresh from it.
+    protocol: None for the goals above; or one of the env's protocols (`protocols_of`:
+    "paper", "dense", ...): then returns the (score [seeds, n_contexts, G], valid) pair of
+    that protocol on `contexts`, as in run.results["protocols"] (the score is the mean of
+    the valid tasks, `protocol_score`).
     """
     from zsbfm.agents import make_agent
     from zsbfm.envs import make_env_for
+    from zsbfm.train import eval_key, seed_keys
 
     cfg = run.cfg
     env = make_env_for(cfg)
     agent = make_agent(cfg, env)
+    if split not in ("train", "test"):
+        raise ValueError(f"split={split!r} is invalid: expected 'train' or 'test'")
     contexts = env.contexts(split) if contexts is None else contexts
-    key = jax.random.PRNGKey(cfg.seed + 1) if key is None else key
+    seeds = jax.tree_util.tree_leaves(run.params)[0].shape[0]
+    if key is None:
+        keys = jax.vmap(eval_key)(seed_keys(cfg)[:seeds])
+    else:
+        keys = jax.random.split(key, seeds)
+    # the same split of each seed's key as the training evaluation (train.make_train)
+    k_train, k_test, k_states = (jnp.stack(ks) for ks in zip(*[jax.random.split(k, 3) for k in keys]))
+    k_split = k_train if split == "train" else k_test
     reward_obs = None
     if metric_of(env) == "return":  # z from the run's (cached) dataset; goals unused
         from zsbfm.data.expert import load_or_collect_dataset
 
-        key, k_states = jax.random.split(key)
-        reward_obs = reward_states(k_states, load_or_collect_dataset(cfg, env))
-    else:
+        ds = load_or_collect_dataset(cfg, env)
+        reward_obs = jax.vmap(lambda k: reward_states(k, ds))(k_states)
+    elif protocol is None:
         goals = default_goals(env, contexts) if goals is None else jnp.asarray(goals, jnp.float32)
         if goals.ndim != 3 or goals.shape[-1] != env.obs_dim:
             raise ValueError(f"goals must be [n_contexts, n_goals, {env.obs_dim}], got shape {goals.shape}")
-    seeds = jax.tree_util.tree_leaves(run.params)[0].shape[0]
-    fn = jax.jit(jax.vmap(lambda p, k: evaluate_params(agent, env, p, k, contexts, goals,
-                                                       cfg.eval_episode_len, cfg.context_len, reward_obs)))
-    return fn(run.params, jax.random.split(key, seeds))
+    if protocol is not None:
+        if protocol not in protocols_of(env):
+            raise ValueError(f"protocol={protocol!r} is invalid for {cfg.env}: expected one of {protocols_of(env)}")
+        fn = jax.jit(jax.vmap(lambda p, k, r: evaluate_protocol(agent, env, p, k, contexts, protocol,
+                                                                 cfg.eval_episode_len, cfg.context_len, r),
+                              in_axes=(0, 0, 0 if reward_obs is not None else None)))
+        return fn(run.params, k_split, reward_obs)
+    fn = jax.jit(jax.vmap(lambda p, k, r: evaluate_params(agent, env, p, k, contexts, goals,
+                                                          cfg.eval_episode_len, cfg.context_len, r),
+                          in_axes=(0, 0, 0 if reward_obs is not None else None)))
+    return fn(run.params, k_split, reward_obs)

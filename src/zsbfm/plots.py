@@ -18,11 +18,19 @@ def _plt():
     return plt
 
 
+# Notes drawn under a metric's panel title: what a reader would otherwise ask about.
+METRIC_NOTES = {
+    "fb_loss": "rises as M grows: -mean diag F^T B\n(the diagonal term) dominates",
+    "fb_diag": "-mean_i F(s_i,a_i)^T B(s'_i)",
+}
+NOT_METRICS = ("chunk", "step", "seconds", "wall_s", "flops")
+
+
 def plot_metrics(run, path):
-    """One panel per logged metric against gradient steps, one line per seed."""
+    """One panel per logged training metric against gradient steps, one line per seed."""
     plt = _plt()
     rows = run.metrics
-    keys = [k for k in rows[0] if k not in ("chunk", "step", "seconds")] if rows else []
+    keys = [k for k in rows[0] if k not in NOT_METRICS and not k.startswith("eval/")] if rows else []
     if not keys:
         return None
     cols = min(4, len(keys))
@@ -30,15 +38,87 @@ def plot_metrics(run, path):
     fig, axes = plt.subplots(nrows, cols, figsize=(3.6 * cols, 2.8 * nrows), squeeze=False)
     steps = [r["step"] for r in rows]
     for ax, k in zip(axes.flat, keys):
-        ax.plot(steps, np.asarray([r[k] for r in rows]))
-        ax.set_title(k, fontsize=9)
-        ax.set_xlabel("step", fontsize=8)
+        values = np.asarray([r[k] for r in rows], float).reshape(len(rows), -1)
+        for i in range(values.shape[1]):
+            ax.plot(steps, values[:, i], label=f"seed {i}")
+        ax.set_title(k + ("\n" + METRIC_NOTES[k] if k in METRIC_NOTES else ""), fontsize=8)
+        ax.set_xlabel("update", fontsize=8)
+    axes.flat[0].legend(fontsize=7)
     for ax in axes.flat[len(keys):]:
         ax.axis("off")
     fig.tight_layout()
     fig.savefig(path, dpi=100)
     plt.close(fig)
     return path
+
+
+def curve_arrays(metrics: list[dict]) -> tuple[np.ndarray, np.ndarray, dict]:
+    """The learning curve of a metrics log: (updates [T], FLOPs [T], {"<split>/<protocol>":
+    scores [T, seeds]}) over the rows that hold an evaluation."""
+    rows = [m for m in metrics if any(k.startswith("eval/") for k in m)]
+    keys = sorted({k for m in rows for k in m if k.startswith("eval/")})
+    steps = np.asarray([m["step"] for m in rows], float)
+    flops = np.asarray([m.get("flops", np.nan) for m in rows], float)
+    return steps, flops, {k[5:]: np.asarray([m[k] for m in rows], float).reshape(len(rows), -1) for k in keys}
+
+
+def plot_curves(lines: dict, path, title: str = ""):
+    """Success against updates and against FLOPs, one line (mean over seeds, band = min..max)
+    per entry of `lines` ({label: metrics list}), one row of panels per split/protocol."""
+    plt = _plt()
+    data = {label: curve_arrays(m) for label, m in lines.items()}
+    keys = sorted({k for _, _, c in data.values() for k in c}, key=lambda k: (k.split("/")[1] != "paper", k))
+    if not keys:
+        return None
+    fig, axes = plt.subplots(len(keys), 2, figsize=(9, 2.6 * len(keys)), squeeze=False)
+    for row, k in zip(axes, keys):
+        for label, (steps, flops, c) in data.items():
+            if k not in c:
+                continue
+            mean, lo, hi = c[k].mean(1), c[k].min(1), c[k].max(1)
+            for ax, x in ((row[0], steps), (row[1], flops)):
+                (line,) = ax.plot(x, mean, marker=".", label=label)
+                ax.fill_between(x, lo, hi, color=line.get_color(), alpha=0.15)
+        row[0].set_ylabel(k.replace("/", "\n"), fontsize=8)
+        row[0].set_xlabel("updates", fontsize=8)
+        row[1].set_xlabel("FLOPs (XLA cost analysis x updates)", fontsize=8)
+        row[1].set_xscale("log")
+        for ax in row:
+            ax.set_ylim(0, 1) if "return" not in k else None
+            ax.grid(alpha=0.3)
+    axes[0, 0].legend(fontsize=7)
+    if title:
+        fig.suptitle(title, fontsize=9)
+    fig.tight_layout()
+    fig.savefig(path, dpi=100)
+    plt.close(fig)
+    return path
+
+
+def plot_sweep(result, root):
+    """sweep.png: per point, the official and dense scores (mean +- std over seeds) on train
+    and test; curves.png: every point's learning curve (when logged)."""
+    plt = _plt()
+    points = result.points
+    protos = [p for p in ("paper", "dense", "return") if any(p in pt["protocols"] for pt in points)]
+    fig, axes = plt.subplots(1, len(protos), figsize=(max(5, 0.9 * len(points) + 2) * len(protos) / 1.5, 3.4),
+                             squeeze=False)
+    x = np.arange(len(points))
+    for ax, p in zip(axes[0], protos):
+        for j, (split, color) in enumerate((("train", "tab:blue"), ("test", "tab:orange"))):
+            v = [np.asarray(pt["protocols"].get(p, {}).get(split, [np.nan]), float) for pt in points]
+            ax.bar(x + (j - 0.5) * 0.4, [a.mean() for a in v], 0.4, yerr=[a.std() for a in v],
+                   color=color, capsize=3, label=split)
+        ax.set_xticks(x, [pt["label"] for pt in points], rotation=60, ha="right", fontsize=7)
+        ax.set_title(f"{p} protocol", fontsize=9)
+        ax.set_ylabel("episode return" if p == "return" else "success rate")
+    axes[0, 0].legend(fontsize=7)
+    fig.tight_layout()
+    fig.savefig(os.path.join(root, "sweep.png"), dpi=100)
+    plt.close(fig)
+    if any(pt["curve"] for pt in points):
+        plot_curves({pt["label"]: pt["curve"] for pt in points}, os.path.join(root, "curves.png"),
+                    title=f"sweep {result.cfg.run_name} ({result.cfg.env}, {result.cfg.algo})")
 
 
 def plot_success(run, path):
@@ -107,5 +187,6 @@ def plot_value_maps(run, path, seed: int = 0, goal_index: int = 0):
 def plot_run(run, run_dir):
     """Write every plot of a run into its directory."""
     plot_metrics(run, os.path.join(run_dir, "metrics.png"))
+    plot_curves({run.cfg.run_name: run.metrics}, os.path.join(run_dir, "curves.png"))
     plot_success(run, os.path.join(run_dir, "success.png"))
     plot_value_maps(run, os.path.join(run_dir, "value_maps.png"))

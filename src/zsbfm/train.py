@@ -39,7 +39,8 @@ from zsbfm.config import Config
 from zsbfm.data.collect import collect
 from zsbfm.data.samplers import DATA_AXIS
 from zsbfm.envs import make_env_for
-from zsbfm.evaluate import default_goals, evaluate_params, metric_of, reward_states, split_results
+from zsbfm.evaluate import (default_goals, evaluate_params, evaluate_protocol, metric_of, protocol_score,
+                            protocols_of, reward_states, split_results)
 from zsbfm.run import Run
 
 
@@ -55,18 +56,30 @@ class TrainCarry:
 
 @dataclasses.dataclass(frozen=True)
 class Trainer:
+    """The pure pieces of a run. `hp` (every piece's last argument, default None) holds
+    traced values of the scalar settings a vmapped sweep varies (`Config.SWEEPABLE`):
+    {field: float32[]} per seed row; None or {} trains cfg's own values."""
+
     cfg: Config
     env: Any
     agent: Any
     init: Callable           # key -> TrainCarry
     collect_data: Callable   # TrainCarry -> Dataset
-    run_chunk: Callable      # (TrainCarry, Dataset, chunk index) -> (TrainCarry, chunk-mean metrics)
-    evaluate: Callable       # (TrainCarry, Dataset) -> {"train": scores [n_ctx, n_goals], "test": ...}
+    run_chunk: Callable      # (TrainCarry, Dataset, chunk index, hp) -> (TrainCarry, chunk-mean metrics)
+    evaluate: Callable       # (TrainCarry, Dataset, eval key, hp) -> {"train": scores [n_ctx, n_goals], "test": ...}
+    evaluate_protocols: Callable  # (TrainCarry, Dataset, eval key, hp) -> {"<split>/<protocol>": score}
     train: Callable          # key -> (TrainCarry, metrics [num_chunks, ...], evaluation)
+    agent_for: Callable      # hp -> the agent with those settings
 
 
 # Incremented each time a chunk is traced; tests use it to check nothing retraces.
-TRACE_COUNTS = {"run_chunk": 0}
+TRACE_COUNTS = {"run_chunk": 0, "evaluate_protocols": 0}
+
+
+def eval_key(seed_key: jax.Array) -> jax.Array:
+    """The key of a seed's evaluations: a function of the seed's key only, so a run's
+    learning curve, its final scores and `zsbfm.evaluate(run)` all use the same tasks."""
+    return jax.random.fold_in(seed_key, 1)
 
 
 def make_train(cfg: Config) -> Trainer:
@@ -74,6 +87,10 @@ def make_train(cfg: Config) -> Trainer:
     agent = make_agent(cfg, env)
     train_ctx, test_ctx = env.contexts("train"), env.contexts("test")
     train_goals, test_goals = default_goals(env, train_ctx), default_goals(env, test_ctx)
+    protocols = protocols_of(env) if cfg.eval_protocols == "all" else protocols_of(env)[:1]
+
+    def agent_for(hp):
+        return agent if not hp else make_agent(cfg.with_traced(hp), env)
 
     def init(key):
         k_data, k_agent, k_loop = jax.random.split(key, 3)
@@ -83,35 +100,57 @@ def make_train(cfg: Config) -> Trainer:
     def collect_data(carry):
         return collect(env, carry.data_key, train_ctx, cfg.episodes_per_layout)
 
-    def run_chunk(carry, dataset, chunk):
+    def run_chunk(carry, dataset, chunk, hp=None):
         """cfg.chunk_steps updates. `chunk` is the chunk index, shared by all seeds: under
         vmap it stays unbatched, so agents can branch on the global step with a real
         lax.cond (a batched predicate would turn the cond into a select of both branches)."""
         TRACE_COUNTS["run_chunk"] += 1
         key, chunk_key = jax.random.split(carry.key)
-        state, metrics = agent.run_steps(carry.agent_state, dataset,
-                                         jax.random.split(chunk_key, cfg.chunk_steps),
-                                         chunk * cfg.chunk_steps)
+        state, metrics = agent_for(hp).run_steps(carry.agent_state, dataset,
+                                                 jax.random.split(chunk_key, cfg.chunk_steps),
+                                                 chunk * cfg.chunk_steps)
         metrics = jax.tree_util.tree_map(jnp.mean, metrics)
         return carry.replace(agent_state=state, key=key, chunk=carry.chunk + 1), metrics
 
-    def evaluate(carry, dataset):
-        params = agent.eval_params(carry.agent_state)
-        k_train, k_test, k_states = jax.random.split(jax.random.fold_in(carry.key, 1), 3)
+    def split_keys(key, dataset):
+        k_train, k_test, k_states = jax.random.split(key, 3)
         # metric "return" (antwind): z is inferred from reward-labelled dataset states
         reward_obs = reward_states(k_states, dataset) if metric_of(env) == "return" else None
-        run = lambda k, ctx, goals: evaluate_params(agent, env, params, k, ctx, goals,
+        return k_train, k_test, reward_obs
+
+    def evaluate(carry, dataset, key, hp=None):
+        """The official scores: {"train": [n_ctx, n_goals], "test": ...}."""
+        a = agent_for(hp)
+        params = a.eval_params(carry.agent_state)
+        k_train, k_test, reward_obs = split_keys(key, dataset)
+        run = lambda k, ctx, goals: evaluate_params(a, env, params, k, ctx, goals,
                                                     cfg.eval_episode_len, cfg.context_len, reward_obs)
         return {"train": run(k_train, train_ctx, train_goals), "test": run(k_test, test_ctx, test_goals)}
+
+    def evaluate_protocols(carry, dataset, key, hp=None):
+        """Every protocol's mean score on both splits: {"train/paper": float32[], ...}.
+        The official protocol's score is the mean of `evaluate`'s (same keys, same tasks)."""
+        TRACE_COUNTS["evaluate_protocols"] += 1
+        a = agent_for(hp)
+        params = a.eval_params(carry.agent_state)
+        k_train, k_test, reward_obs = split_keys(key, dataset)
+        out = {}
+        for split, k, ctx in (("train", k_train, train_ctx), ("test", k_test, test_ctx)):
+            for protocol in protocols:
+                score, valid = evaluate_protocol(a, env, params, k, ctx, protocol, cfg.eval_episode_len,
+                                                 cfg.context_len, reward_obs)
+                out[f"{split}/{protocol}"] = protocol_score(score, valid)
+        return out
 
     def train(key):
         carry = init(key)
         dataset = collect_data(carry)
         carry, metrics = jax.lax.scan(lambda c, i: run_chunk(c, dataset, i), carry,
                                       jnp.arange(cfg.num_chunks, dtype=jnp.int32))
-        return carry, metrics, evaluate(carry, dataset)
+        return carry, metrics, evaluate(carry, dataset, eval_key(key))
 
-    return Trainer(cfg, env, agent, init, collect_data, run_chunk, evaluate, train)
+    return Trainer(cfg, env, agent, init, collect_data, run_chunk, evaluate, evaluate_protocols,
+                   train, agent_for)
 
 
 # --- Host driver ---------------------------------------------------------------------------
@@ -158,12 +197,13 @@ def on_mesh(fn: Callable, mesh: jax.sharding.Mesh) -> Callable:
 
 
 def chunk_function(trainer: Trainer, shard: jax.sharding.NamedSharding) -> Callable:
-    """The compiled chunk zsbfm.train runs: (carry, dataset, np.int32 chunk) -> (carry, metrics).
+    """The compiled chunk zsbfm.train runs: (carry, dataset, np.int32 chunk, hp) -> (carry, metrics).
 
-    vmap over seeds with spmd_axis_name="seeds", so the batch constraint inside becomes
-    P("seeds", "data") rather than replicating the seed axis; carry donated and kept on
-    `shard`; the chunk-mean metrics replicated (tiny; every process can read them)."""
-    per_seed = jax.vmap(trainer.run_chunk, in_axes=(0, 0, None), spmd_axis_name="seeds")
+    vmap over seeds (rows: setting x seed in a sweep) with spmd_axis_name="seeds", so the
+    batch constraint inside becomes P("seeds", "data") rather than replicating the seed
+    axis; carry donated and kept on `shard`; the chunk-mean metrics replicated (tiny; every
+    process can read them). hp: {field: float32[rows]} ({} for a plain run)."""
+    per_seed = jax.vmap(trainer.run_chunk, in_axes=(0, 0, None, 0), spmd_axis_name="seeds")
     return jax.jit(on_mesh(per_seed, shard.mesh), donate_argnums=0, out_shardings=(shard, replicated(shard)))
 
 
@@ -201,6 +241,150 @@ def _read_metrics(run_dir: str, upto_chunk: int) -> list[dict]:
     return [r for r in rows if r["chunk"] <= upto_chunk]
 
 
+def update_flops(trainer: Trainer, carry, dataset, hp) -> Callable[[int], float]:
+    """Cumulative FLOPs of one seed row after `step` updates, from XLA's cost analysis of
+    one compiled update of the same program (compiled here; nothing runs): updates before
+    cfg.steps - cfg.fb_steps (a staged belief run's encoder phase) cost what the first
+    update costs, later ones what the last one costs."""
+    cfg = trainer.cfg
+    row = jax.tree_util.tree_map(lambda x: x[0], (carry, dataset, hp))
+
+    def cost_at(first_step):
+        def one_update(c, ds, h):
+            return trainer.agent_for(h).run_steps(c.agent_state, ds, c.key[None], jnp.int32(first_step))
+
+        cost = jax.jit(one_update).lower(*row).compile().cost_analysis()
+        cost = cost[0] if isinstance(cost, (list, tuple)) else cost
+        return float(cost.get("flops", float("nan")))
+
+    switch = cfg.steps - cfg.fb_steps
+    late = cost_at(cfg.steps - 1)
+    early = cost_at(0) if switch else late
+    return lambda step: early * min(step, switch) + late * max(0, step - switch)
+
+
+def prepare_run_dir(cfg: Config, resume: bool, extra: dict | None = None) -> str:
+    """runs/<name>/ with config.json (and `extra`, e.g. a sweep's grid, beside it): a
+    different config already there is an error; resume=False starts over."""
+    run_dir = os.path.abspath(os.path.join(cfg.runs_dir, cfg.run_name))
+    cfg_path = os.path.join(run_dir, "config.json")
+    primary = jax.process_index() == 0  # writes the run's files (multi-process runs)
+    if os.path.exists(cfg_path):
+        with open(cfg_path) as f:  # data_parallel is placement: a run may resume with another
+            old = dataclasses.replace(Config.from_dict(json.load(f)), data_parallel=cfg.data_parallel)
+        old_extra = None
+        if os.path.exists(os.path.join(run_dir, "sweep.json")):
+            with open(os.path.join(run_dir, "sweep.json")) as f:
+                old_extra = json.load(f).get("grid")
+        if not resume:
+            _barrier("zsbfm: config read")
+            if primary:
+                shutil.rmtree(run_dir)
+        elif old != cfg or (extra or {}).get("grid") != old_extra:
+            diff = {k: (v, getattr(cfg, k)) for k, v in old.to_dict().items() if getattr(cfg, k) != v}
+            if (extra or {}).get("grid") != old_extra:
+                diff["sweep grid"] = (old_extra, (extra or {}).get("grid"))
+            raise ValueError(f"{run_dir} holds a run with a different config {diff}; choose another "
+                             "name (Config.name / --name), or start over (resume=False / --no-resume)")
+    os.makedirs(run_dir, exist_ok=True)
+    if primary:
+        with open(cfg_path, "w") as f:
+            f.write(cfg.to_json())
+        if extra is not None:
+            with open(os.path.join(run_dir, "sweep.json"), "w") as f:
+                json.dump(extra, f, indent=2)
+    _barrier("zsbfm: run directory ready")
+    return run_dir
+
+
+@dataclasses.dataclass
+class LoopResult:
+    """What `run_loop` leaves: the final carry (rows on `shard`), the dataset, every chunk's
+    metrics row, the chunk it resumed from, and the training wall time of this call."""
+
+    carry: Any
+    dataset: Any
+    metrics: list
+    start: int
+    train_seconds: float
+    shard: Any
+    eval_fn: Callable
+    keys: jax.Array
+    hp: dict
+
+
+def run_loop(trainer: Trainer, run_dir: str, keys, hp: dict, resume: bool, progress: bool,
+             callback: Callable[[int, dict], None] | None = None, label: str = "") -> LoopResult:
+    """Train the rows of `keys` (one seed key per row) with their settings `hp` ({field:
+    [rows]}, {} for cfg's own), one compiled chunk at a time, resuming from run_dir's newest
+    checkpoint. Between chunks: metrics.jsonl, a checkpoint, progress, and every
+    cfg.eval_every chunks a learning-curve evaluation (`Trainer.evaluate_protocols`,
+    compiled once) logged as "eval/<split>/<protocol>" with the update count, wall time and
+    cumulative FLOPs (`update_flops` x updates)."""
+    cfg = trainer.cfg
+    rows = int(np.asarray(keys).shape[0])
+    primary = jax.process_index() == 0
+    t0 = time.time()
+    shard = seed_sharding(rows, data_parallel=cfg.data_parallel)
+    carry = jax.jit(jax.vmap(trainer.init), out_shardings=shard)(global_array(keys, shard))
+    hp = {k: global_array(np.asarray(v, np.float32), shard) for k, v in hp.items()}
+    mngr = _checkpoint_manager(run_dir) if cfg.checkpoint else None
+    start = 0
+    if mngr is not None and resume and mngr.latest_step() is not None:
+        start = mngr.latest_step()
+        carry = mngr.restore(start, args=ocp.args.StandardRestore(carry))
+    metrics = _read_metrics(run_dir, start)
+    elapsed0 = metrics[-1].get("wall_s", 0.0) if metrics else 0.0
+
+    if cfg.env == "antwind":
+        # One dataset for every seed, read from the on-disk cache (`make data ENV=antwind`)
+        # or recorded once and cached: MJX rollouts are too costly to redo per seed here.
+        from zsbfm.data.expert import load_or_collect_dataset
+
+        ds = load_or_collect_dataset(cfg, trainer.env, progress and primary)
+        dataset = jax.tree_util.tree_map(
+            lambda x: global_array(np.broadcast_to(np.asarray(x), (rows,) + x.shape), shard), ds)
+    else:  # every seed's data is collected on the device that trains that seed
+        dataset = jax.jit(jax.vmap(trainer.collect_data), out_shardings=shard)(carry)
+    chunk_fn = chunk_function(trainer, shard)
+    ekeys = global_array(np.asarray(jax.vmap(eval_key)(jnp.asarray(keys))), shard)
+    eval_fn = jax.jit(jax.vmap(trainer.evaluate_protocols), out_shardings=replicated(shard))
+    flops = update_flops(trainer, carry, dataset, hp) if cfg.eval_every else None
+    bar = _progress(cfg, start, progress and primary, label)
+    t_loop = time.time()
+    with open(os.path.join(run_dir, "metrics.jsonl") if primary else os.devnull, "w") as f:
+        for row in metrics:
+            f.write(json.dumps(row) + "\n")
+        for chunk in range(start, cfg.num_chunks):
+            t_chunk = time.time()
+            carry, m = chunk_fn(carry, dataset, np.int32(chunk), hp)
+            m = jax.device_get(m)  # the one host transfer per chunk
+            step = (chunk + 1) * cfg.chunk_steps
+            row = {"chunk": chunk + 1, "step": step, "seconds": round(time.time() - t_chunk, 3),
+                   **{k: np.asarray(v).tolist() for k, v in m.items()}}
+            if cfg.eval_every and ((chunk + 1) % cfg.eval_every == 0 or chunk + 1 == cfg.num_chunks):
+                scores = jax.device_get(eval_fn(carry, dataset, ekeys, hp))
+                row.update({f"eval/{k}": np.round(np.asarray(v), 4).tolist() for k, v in scores.items()})
+                row["flops"] = flops(step)
+            row["wall_s"] = round(elapsed0 + time.time() - t_loop, 2)
+            metrics.append(row)
+            f.write(json.dumps(row) + "\n")
+            f.flush()
+            if mngr is not None:
+                mngr.save(chunk + 1, args=ocp.args.StandardSave(carry))
+            bar.update(1)
+            shown = {k: f"{np.mean(row[k]):.3g}" for k in ("fb_loss", "sf_loss", "enc_mse")
+                     if k in row and np.isfinite(np.mean(row[k]))}  # the phase's own loss
+            shown.update({k[5:]: f"{np.mean(row[k]):.2f}" for k in row if k.startswith("eval/") and k.endswith("/dense")})
+            bar.set_postfix(shown)
+            if callback is not None:
+                callback(chunk + 1, row)
+    bar.close()
+    if mngr is not None:
+        mngr.wait_until_finished()
+    return LoopResult(carry, dataset, metrics, start, time.time() - t0, shard, eval_fn, ekeys, hp)
+
+
 def train(cfg: Config, resume: bool = True, progress: bool = True,
           callback: Callable[[int, dict], None] | None = None) -> Run:
     """Train every seed of `cfg` together (jax.vmap), evaluate, save and return a `Run`.
@@ -217,87 +401,20 @@ def train(cfg: Config, resume: bool = True, progress: bool = True,
     together; process 0 alone writes config.json, metrics.jsonl, results.json and plots;
     the returned Run's params are replicated on every process.
     """
-    run_dir = os.path.abspath(os.path.join(cfg.runs_dir, cfg.run_name))
-    cfg_path = os.path.join(run_dir, "config.json")
-    primary = jax.process_index() == 0  # writes the run's files (multi-process runs)
-    if os.path.exists(cfg_path):
-        with open(cfg_path) as f:  # data_parallel is placement: a run may resume with another
-            old = dataclasses.replace(Config.from_dict(json.load(f)), data_parallel=cfg.data_parallel)
-        if not resume:
-            _barrier("zsbfm: config read")
-            if primary:
-                shutil.rmtree(run_dir)
-        elif old != cfg:
-            diff = {k: (v, getattr(cfg, k)) for k, v in old.to_dict().items() if getattr(cfg, k) != v}
-            raise ValueError(f"{run_dir} holds a run with a different config {diff}; choose another "
-                             "name (Config.name / --name), or start over (resume=False / --no-resume)")
-    os.makedirs(run_dir, exist_ok=True)
-    if primary:
-        with open(cfg_path, "w") as f:
-            f.write(cfg.to_json())
-    _barrier("zsbfm: run directory ready")
-
-    t0 = time.time()
+    run_dir = prepare_run_dir(cfg, resume)
+    primary = jax.process_index() == 0
     trainer = make_train(cfg)
-    shard = seed_sharding(cfg.num_seeds, data_parallel=cfg.data_parallel)
-    carry = jax.jit(jax.vmap(trainer.init), out_shardings=shard)(global_array(seed_keys(cfg), shard))
-    mngr = _checkpoint_manager(run_dir) if cfg.checkpoint else None
-    start = 0
-    if mngr is not None and resume and mngr.latest_step() is not None:
-        start = mngr.latest_step()
-        carry = mngr.restore(start, args=ocp.args.StandardRestore(carry))
-    metrics = _read_metrics(run_dir, start)
-
-    if cfg.env == "antwind":
-        # One dataset for every seed, read from the on-disk cache (`make data ENV=antwind`)
-        # or recorded once and cached: MJX rollouts are too costly to redo per seed here.
-        from zsbfm.data.expert import load_or_collect_dataset
-
-        ds = load_or_collect_dataset(cfg, trainer.env, progress and primary)
-        dataset = jax.tree_util.tree_map(
-            lambda x: global_array(np.broadcast_to(np.asarray(x), (cfg.num_seeds,) + x.shape), shard), ds)
-    else:  # every seed's data is collected on the device that trains that seed
-        dataset = jax.jit(jax.vmap(trainer.collect_data), out_shardings=shard)(carry)
-    chunk_fn = chunk_function(trainer, shard)
-    bar = _progress(cfg, start, progress and primary)
-    with open(os.path.join(run_dir, "metrics.jsonl") if primary else os.devnull, "w") as f:
-        for row in metrics:
-            f.write(json.dumps(row) + "\n")
-        for chunk in range(start, cfg.num_chunks):
-            t_chunk = time.time()
-            carry, m = chunk_fn(carry, dataset, np.int32(chunk))
-            m = jax.device_get(m)  # the one host transfer per chunk
-            row = {"chunk": chunk + 1, "step": (chunk + 1) * cfg.chunk_steps,
-                   "seconds": round(time.time() - t_chunk, 3),
-                   **{k: np.asarray(v).tolist() for k, v in m.items()}}
-            metrics.append(row)
-            f.write(json.dumps(row) + "\n")
-            f.flush()
-            if mngr is not None:
-                mngr.save(chunk + 1, args=ocp.args.StandardSave(carry))
-            bar.update(1)
-            shown = {k: f"{np.mean(row[k]):.3g}" for k in ("fb_loss", "sf_loss", "enc_mse")
-                     if k in row and np.isfinite(np.mean(row[k]))}  # the phase's own loss
-            bar.set_postfix(shown)
-            if callback is not None:
-                callback(chunk + 1, row)
-    bar.close()
-    if mngr is not None:
-        mngr.wait_until_finished()
-    train_seconds = time.time() - t0
-
-    t_eval = time.time()
-    success = jax.jit(jax.vmap(trainer.evaluate), out_shardings=replicated(shard))(carry, dataset)
-    success = jax.device_get(success)
-    results = {split: split_results(success[split])["success"] for split in ("train", "test")}
-    results["detail"] = {split: split_results(success[split]) for split in ("train", "test")}
-    results["wall_time_s"] = {"train": round(train_seconds, 2), "eval": round(time.time() - t_eval, 2)}
-    results["resumed_from_chunk"] = start
-    results["metric"] = metric_of(trainer.env)
-    params = trainer.agent.eval_params(carry.agent_state)
+    loop = run_loop(trainer, run_dir, seed_keys(cfg), {}, resume, progress, callback)
+    old = _read_results(run_dir) if loop.start == cfg.num_chunks else None
+    results = final_results(trainer, loop)
+    results["wall_time_s"]["train"] = round(loop.train_seconds, 2)
+    if old is not None:  # a finished run evaluated again: its training time is the original's
+        results["wall_time_s"]["train"] = old.get("wall_time_s", {}).get("train", results["wall_time_s"]["train"])
+    results["resumed_from_chunk"] = loop.start
+    params = trainer.agent.eval_params(loop.carry.agent_state)
     if jax.process_count() > 1:  # each process holds only its seeds: gather them everywhere
-        params = jax.jit(lambda p: p, out_shardings=replicated(shard))(params)
-    run = Run(cfg=cfg, params=params, results=results, metrics=metrics)
+        params = jax.jit(lambda p: p, out_shardings=replicated(loop.shard))(params)
+    run = Run(cfg=cfg, params=params, results=results, metrics=loop.metrics)
     run.save(run_dir)
     if not primary:
         return run
@@ -310,8 +427,42 @@ def train(cfg: Config, resume: bool = True, progress: bool = True,
     return run
 
 
-def _progress(cfg: Config, start: int, enabled: bool):
+def _read_results(run_dir: str) -> dict | None:
+    path = os.path.join(run_dir, "results.json")
+    if not os.path.exists(path):
+        return None
+    with open(path) as f:
+        return json.load(f)
+
+
+def final_results(trainer: Trainer, loop: LoopResult) -> dict:
+    """results.json's content for the rows of `loop`: the official score per split and row
+    ("train", "test"), its per-layout / per-goal detail, and every protocol's score
+    ("protocols": {protocol: {split: [per row]}})."""
+    t_eval = time.time()
+    per_row = jax.vmap(trainer.evaluate)
+    success = jax.jit(per_row, out_shardings=replicated(loop.shard))(loop.carry, loop.dataset, loop.keys, loop.hp)
+    success = jax.device_get(success)
+    results = {split: split_results(success[split])["success"] for split in ("train", "test")}
+    results["detail"] = {split: split_results(success[split]) for split in ("train", "test")}
+    last = loop.metrics[-1] if loop.metrics else {}
+    if any(k.startswith("eval/") for k in last):  # the curve's last point is this very evaluation
+        scores = {k[5:]: last[k] for k in last if k.startswith("eval/")}
+    else:
+        scores = jax.device_get(loop.eval_fn(loop.carry, loop.dataset, loop.keys, loop.hp))
+        scores = {k: np.round(np.asarray(v), 4).tolist() for k, v in scores.items()}
+    protocols: dict = {}
+    for k, v in scores.items():
+        split, protocol = k.split("/")
+        protocols.setdefault(protocol, {})[split] = v
+    results["protocols"] = protocols
+    results["wall_time_s"] = {"train": round(loop.train_seconds, 2), "eval": round(time.time() - t_eval, 2)}
+    results["metric"] = metric_of(trainer.env)
+    return results
+
+
+def _progress(cfg: Config, start: int, enabled: bool, label: str = ""):
     from tqdm.auto import tqdm
 
     return tqdm(total=cfg.num_chunks, initial=start, disable=not enabled, unit="chunk",
-                desc=f"{cfg.run_name} ({cfg.num_seeds} seeds x {cfg.chunk_steps} steps/chunk)")
+                desc=label or f"{cfg.run_name} ({cfg.num_seeds} seeds x {cfg.chunk_steps} steps/chunk)")

@@ -285,7 +285,8 @@ class BeliefFBAgent(FBAgent):
         def fb_chunk(s):
             s = jax.lax.cond(first_step == K, lambda s: self.build_h_table(s, dataset, k_table),
                              lambda s: s, s)
-            return jax.lax.scan(lambda s, k: FBAgent.update(self, s, dataset, k), s, keys)
+            stats = self.dataset_stats(dataset)
+            return jax.lax.scan(lambda s, k: FBAgent.update(self, s, dataset, k, stats=stats), s, keys)
 
         pre_shape, fb_shape = jax.eval_shape(pre_chunk, state)[1], jax.eval_shape(fb_chunk, state)[1]
 

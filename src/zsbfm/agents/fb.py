@@ -65,12 +65,55 @@ def fb_loss(F: Array, B: Array, target_M: Array, gamma: float) -> tuple[Array, d
                   "M_offdiag": jnp.sum(M * off) / (M.shape[0] * n * (n - 1))}
 
 
+def fb_loss_splus(F: Array, B_next: Array, B_plus: Array, target_M: Array, gamma,
+                  rho: Array | None = None) -> tuple[Array, dict]:
+    """The same TD loss with the s+ side taken from states independent of the batch.
+
+    F:        [K, n, d]  F_k(s_i, a_i, w_i)
+    B_next:   [n, d]     B(s'_i) (the diagonal term: the observed transitions)
+    B_plus:   [m, d]     B(s+_j) for states s+_j ~ rho (Config.splus)
+    target_M: [n, m]     Fbar(s'_i, pi(s'_i), w_i)^T Bbar(s+_j)                 (stop-gradient)
+    rho:      [m] or None: weights of the s+ rows (an exact expectation over a finite state
+              set, summing to 1); None: the rows are samples, weighted 1/m each.
+
+    L = sum_k [ 0.5 * E_{s+ ~ rho} mean_i (F_k(s_i,a_i)^T B(s+) - gamma target_M[i, s+])^2
+                - mean_i F_k(s_i, a_i)^T B(s'_i) ]
+    Every (i, j) pair is independent here, so no diagonal is excluded.
+    """
+    target_M = jax.lax.stop_gradient(target_M)
+    M = jnp.einsum("knd,md->knm", F, B_plus)
+    w = jnp.full(B_plus.shape[:1], 1.0 / B_plus.shape[0]) if rho is None else rho
+    offdiag = 0.5 * jnp.einsum("knm,m->k", (M - gamma * target_M) ** 2, w) / F.shape[1]
+    M_diag = jnp.einsum("knd,nd->kn", F, B_next)
+    diag = -jnp.mean(M_diag, axis=1)
+    return jnp.sum(offdiag + diag), {"fb_offdiag": jnp.sum(offdiag), "fb_diag": jnp.sum(diag),
+                                     "M_diag": jnp.mean(M_diag),
+                                     "M_offdiag": jnp.mean(jnp.einsum("knm,m->kn", M, w))}
+
+
 def ortho_loss(B: Array) -> Array:
     """Orthonormality of B over a batch: -2 mean diag(B B^T) + mean offdiag(B B^T)^2."""
     n = B.shape[0]
     cov = B @ B.T
     off = 1.0 - jnp.eye(n)
     return -2.0 * jnp.mean(jnp.diagonal(cov)) + jnp.sum((cov * off) ** 2) / (n * (n - 1))
+
+
+def ortho_loss_weighted(B: Array, rho: Array) -> Array:
+    """The exact expectation of the orthonormality loss over states s, s' ~ rho independent:
+    E (B(s)^T B(s'))^2 - 2 E |B(s)|^2 = |C|_F^2 - 2 tr C, with C = sum_j rho_j B_j B_j^T [d, d].
+    B: [m, d] every state of a finite set; rho: [m] its weights (summing to 1)."""
+    C = jnp.einsum("m,md,me->de", rho, B, B)
+    return jnp.sum(C**2) - 2.0 * jnp.trace(C)
+
+
+def clip_by_global_norm(grads, max_norm) -> Any:
+    """grads scaled by min(1, max_norm / |grads|) (global L2 norm); max_norm = 0: unchanged.
+    Written with jnp.where rather than a Python branch so max_norm can be a traced value
+    (a vmapped sweep over Config.clip_norm)."""
+    norm = optax.tree.norm(grads)
+    scale = jnp.where(max_norm > 0, jnp.minimum(1.0, max_norm / (norm + 1e-12)), 1.0)
+    return jax.tree_util.tree_map(lambda g: g * scale, grads)
 
 
 def mix_z(key: Array, z_prior: Array, z_states: Array, mix: float) -> Array:
@@ -124,7 +167,8 @@ class FBAgent:
     def F_net(self) -> TwinForward:
         c = self.cfg
         return TwinForward(c.d, self.env.n_actions, c.f_pre_hidden, c.f_pre_out, c.f_hidden,
-                           h_dim=self.h_dim, h_in_sa=c.h_in_sa, h_cond=c.h_cond, arch=c.f_arch)
+                           h_dim=self.h_dim, h_in_sa=c.h_in_sa, h_cond=c.h_cond, arch=c.f_arch,
+                           heads=c.f_heads)
 
     @property
     def actor_net(self) -> Actor:
@@ -219,23 +263,38 @@ class FBAgent:
     def eval_params(self, state: FBState) -> FBParams:
         return state.params
 
-    def update(self, state: FBState, dataset, key: Array, step: Array | None = None) -> tuple[FBState, dict]:
+    def update(self, state: FBState, dataset, key: Array, step: Array | None = None,
+               stats: dict | None = None) -> tuple[FBState, dict]:
         """One gradient step on a fresh batch sampled from `dataset`.
 
         step: the global update index (unbatched across seeds); FB does not need it.
+        stats: `dataset_stats(dataset)`, computed here if None (`run_steps` computes it
+        once per chunk).
         """
+        stats = self.dataset_stats(dataset) if stats is None else stats
         k_batch, k_h, k_z, k_aux = jax.random.split(key, 4)
         batch = sample_transitions(k_batch, dataset, self.cfg.batch_size)
         h = self.train_context(state, dataset, batch, k_h)
         z = self.train_z(state, dataset, batch, h, k_z)
         task = Task(z=jax.lax.stop_gradient(z), h=jax.lax.stop_gradient(h))
-        aux = self.aux_batch(dataset, batch, k_aux)
+        aux = self.aux_batch(dataset, batch, k_aux, stats)
         grads, metrics = jax.grad(self.loss, has_aux=True)(state.params, state.target, batch, task, aux)
-        updates, opt_state = self.optimizer.update(grads, state.opt_state, state.params)
-        params = optax.apply_updates(state.params, updates)
+        params, opt_state = self.apply_grads(state.params, state.opt_state, grads)
         target = self.update_target(params, state.target)
         # replace, not a new FBState: the belief flavours' states carry extra fields.
         return state.replace(params=params, target=target, opt_state=opt_state, step=state.step + 1), metrics
+
+    def apply_grads(self, params: FBParams, opt_state, grads: FBParams):
+        """Clip (Config.clip_norm, global norm over all of F, B, actor), take the Adam step,
+        and scale B's step by lr_B / lr (Config.lr_B; Adam is invariant to the gradient's
+        scale, so this is Adam on B at lr_B). Neither changes the optimiser state's
+        structure, so runs saved before these options existed resume as they were."""
+        grads = clip_by_global_norm(grads, self.cfg.clip_norm)
+        updates, opt_state = self.optimizer.update(grads, opt_state, params)
+        lr_B = self.cfg.lr_B
+        b_scale = jnp.where(lr_B > 0, lr_B / self.cfg.lr, 1.0)
+        updates = updates.replace(B=jax.tree_util.tree_map(lambda u: u * b_scale, updates.B))
+        return optax.apply_updates(params, updates), opt_state
 
     def run_steps(self, state, dataset, keys: Array, first_step: Array):
         """len(keys) updates as one scan; first_step is the unbatched global step of the first.
@@ -244,32 +303,73 @@ class FBAgent:
         this to branch once per chunk rather than once per step.
         """
         steps = first_step + jnp.arange(keys.shape[0])
-        return jax.lax.scan(lambda s, xs: self.update(s, dataset, *xs), state, (keys, steps))
+        stats = self.dataset_stats(dataset)  # once per chunk, not once per update
+        return jax.lax.scan(lambda s, xs: self.update(s, dataset, *xs, stats=stats), state, (keys, steps))
 
-    def aux_batch(self, dataset, batch: Transitions, key: Array) -> dict:
-        """Extra random inputs a loss needs beyond the transitions, as a dict:
-        "noise" (continuous actions: the target-policy smoothing noise, already clipped)."""
-        if self.env.discrete:
+    def dataset_stats(self, dataset) -> dict:
+        """Constants of the dataset that the loss reads: for Config.splus="exact", "rho"
+        [n_states], the frequency of each of the env's states among the dataset's next
+        states s_1..s_T (the law rho the measure is a density against); else empty."""
+        if self.cfg.splus != "exact":
             return {}
-        noise = self.cfg.target_noise * jax.random.normal(key, batch.next_obs.shape[:1] + (self.env.action_dim,))
-        return {"noise": jnp.clip(noise, -self.cfg.target_noise_clip, self.cfg.target_noise_clip)}
+        nxt = dataset.obs[..., 1:, :].reshape(-1, dataset.obs.shape[-1])
+        idx = self.env.state_index(nxt)
+        counts = jnp.zeros((self.env.num_states,), jnp.float32).at[idx].add(1.0)
+        return {"rho": counts / idx.shape[0]}
+
+    def aux_batch(self, dataset, batch: Transitions, key: Array, stats: dict | None = None) -> dict:
+        """Extra inputs a loss needs beyond the transitions, as a dict:
+        "noise" (continuous actions: the target-policy smoothing noise, already clipped);
+        "splus" (Config.splus="states": splus_batch dataset states, independent of the batch);
+        "rho" (Config.splus="exact": the weights of env.states(), from `dataset_stats`)."""
+        aux = {}
+        if self.cfg.splus == "states":  # fold_in: the noise keeps the key it always had
+            aux["splus"] = sample_states(jax.random.fold_in(key, 1), dataset, self.cfg.splus_batch)
+        elif self.cfg.splus == "exact":
+            aux["rho"] = (self.dataset_stats(dataset) if stats is None else stats)["rho"]
+        if not self.env.discrete:
+            shape = batch.next_obs.shape[:1] + (self.env.action_dim,)
+            noise = self.cfg.target_noise * jax.random.normal(key, shape)
+            aux["noise"] = jnp.clip(noise, -self.cfg.target_noise_clip, self.cfg.target_noise_clip)
+        return aux
 
     def update_target(self, params: FBParams, target: FBParams) -> FBParams:
         """Polyak averaging: target <- tau * params + (1 - tau) * target."""
         return optax.incremental_update(params, target, self.cfg.tau)
 
     def loss(self, params: FBParams, target: FBParams, batch: Transitions, task: Task, aux: dict):
-        """FB TD loss + ortho_coef * orthonormality loss for one batch."""
+        """FB TD loss + ortho_coef * orthonormality loss for one batch.
+
+        The s+ side of the off-diagonal and orthonormality terms (Config.splus):
+          "batch":  the batch's own next states, pairs i != j (`fb_loss`, `ortho_loss`);
+          "states": aux["splus"], splus_batch dataset states drawn independently of the
+                    batch (`fb_loss_splus`, `ortho_loss` on them);
+          "exact":  every state of a finite-state env (env.states()) weighted by aux["rho"],
+                    its frequency among the dataset's next states: the exact expectation
+                    over s+ ~ rho of the same loss, with no s+ sampling variance
+                    (`fb_loss_splus` with rho, `ortho_loss_weighted`).
+        """
         F = self.forward_sa(params.F, batch.obs, batch.action, task)           # [2, n, d]
         B_next = self.backward(params.B, batch.next_obs)                     # [n, d]
         target_F = self.target_next_F(target, batch.next_obs, task, aux)     # [2, n, d]
-        target_B = self.backward(target.B, batch.next_obs)
-        target_Ms = jnp.einsum("knd,md->knm", target_F, target_B)         # [2, n, n]
+        if self.cfg.splus == "batch":
+            plus, B_plus = batch.next_obs, B_next
+        else:
+            plus = aux["splus"] if self.cfg.splus == "states" else self.env.states()
+            B_plus = self.backward(params.B, plus)                           # [m, d]
+        target_Ms = jnp.einsum("knd,md->knm", target_F, self.backward(target.B, plus))  # [2, n, m]
         # "mean" (metamotivo's default): min is a per-step downward bias that the TD
         # recursion amplifies by 1/(1-gamma) on the off-diagonal (unbounded-sign) measure.
         target_M = jnp.mean(target_Ms, 0) if self.cfg.twin_target == "mean" else jnp.min(target_Ms, 0)
-        l_fb, metrics = fb_loss(F, B_next, target_M, self.cfg.gamma)
-        l_ortho = ortho_loss(B_next)
+        if self.cfg.splus == "batch":
+            l_fb, metrics = fb_loss(F, B_next, target_M, self.cfg.gamma)
+            l_ortho = ortho_loss(B_next)
+        elif self.cfg.splus == "states":
+            l_fb, metrics = fb_loss_splus(F, B_next, B_plus, target_M, self.cfg.gamma)
+            l_ortho = ortho_loss(B_plus)
+        else:
+            l_fb, metrics = fb_loss_splus(F, B_next, B_plus, target_M, self.cfg.gamma, aux["rho"])
+            l_ortho = ortho_loss_weighted(B_plus, aux["rho"])
         l_actor, m_actor = self.actor_loss(params, batch, task)
         metrics = dict(metrics, **m_actor, fb_loss=l_fb, ortho_loss=l_ortho,
                        q_mean=jnp.mean(jnp.einsum("knd,nd->kn", F, task.z)))

@@ -134,14 +134,14 @@ class HILPAgent(SFAgent):
         """V_k(s, g) = -|phi_k(s) - phi_k(g)|: [heads, n] (eps inside the sqrt: finite gradient at 0)."""
         return -jnp.sqrt(jnp.sum((phi_all_s - phi_all_g) ** 2, -1) + 1e-6)
 
-    def aux_batch(self, dataset, batch: Transitions, key: Array) -> dict:
+    def aux_batch(self, dataset, batch: Transitions, key: Array, stats: dict | None = None) -> dict:
         """Adds "goals": with prob hilp_p_traj_goal a future state s_{t+k} of the same
         episode, k ~ Geometric(1 - feat_gamma); otherwise a uniformly random dataset state."""
         k_base, k_fut, k_rand, k_mix = jax.random.split(key, 4)
         future = sample_future(k_fut, dataset, batch.episode, batch.t, self.cfg.feat_gamma)
         rand = sample_states(k_rand, dataset, batch.obs.shape[0])
         use_future = jax.random.uniform(k_mix, batch.obs.shape[:1]) < self.cfg.hilp_p_traj_goal
-        return dict(super().aux_batch(dataset, batch, k_base), goals=jnp.where(use_future[:, None], future, rand))
+        return dict(super().aux_batch(dataset, batch, k_base, stats), goals=jnp.where(use_future[:, None], future, rand))
 
     def feature_loss(self, params, target, batch, aux):
         c = self.cfg

@@ -92,14 +92,21 @@ class LayoutFamily:
     start: tuple[int, int]  # evaluation start cell (x, y)
     goals: tuple[tuple[int, int], ...]  # evaluation goal cells (x, y)
     max_layouts: int | None  # number of distinct layouts, if small
+    # "random_start" protocol: these goals, each from RANDOM_START_REPEATS random free cells
+    random_start_goals: tuple[tuple[int, int], ...] = ()
 
 
 FAMILIES = {
     "doors": LayoutFamily("doors", 9, doors_sample_params, doors_walls,
-                          start=(1, 1), goals=((7, 4), (7, 1), (7, 7)), max_layouts=49),
+                          start=(1, 1), goals=((7, 4), (7, 1), (7, 7)), max_layouts=49,
+                          random_start_goals=((7, 4), (7, 1), (7, 7))),
+    # the authors' earlier evaluation: random starts, a fourth goal (2, 2) beside the start
     "fourrooms": LayoutFamily("fourrooms", 11, fourrooms_sample_params, fourrooms_walls,
-                              start=(1, 1), goals=((8, 8), (2, 8), (8, 2)), max_layouts=None),
+                              start=(1, 1), goals=((8, 8), (2, 8), (8, 2)), max_layouts=None,
+                              random_start_goals=((2, 2), (8, 8), (2, 8), (8, 2))),
 }
+
+RANDOM_START_REPEATS = 5  # random start cells per goal in the "random_start" protocol
 
 N_TEST_LAYOUTS = 20
 _TEST_SEED, _TRAIN_SEED = 2024, 0
@@ -186,6 +193,21 @@ class GridWorld:
     def obs_high(self) -> tuple[float, ...]:
         return (float(self.size - 1),) * 2
 
+    @property
+    def num_states(self) -> int:
+        """Cells of the grid, border included (the finite state set of `states`)."""
+        return self.size * self.size
+
+    def states(self) -> Array:
+        """Every cell's observation (x, y), row-major (index y * size + x): float32[num_states, 2]."""
+        y, x = jnp.mgrid[0:self.size, 0:self.size]
+        return jnp.stack([x.reshape(-1), y.reshape(-1)], -1).astype(jnp.float32)
+
+    def state_index(self, obs: Array) -> Array:
+        """Row-major cell index of observations [..., 2] (the row of `states`): int32[...]."""
+        cell = jnp.round(obs).astype(jnp.int32)
+        return cell[..., 1] * self.size + cell[..., 0]
+
     # -- contexts -----------------------------------------------------------------------
     def contexts(self, split: str) -> GridContext:
         """Stacked fixed layouts of a split: walls bool[n, H, W]."""
@@ -207,6 +229,34 @@ class GridWorld:
     def eval_goals(self, ctx: GridContext) -> Array:
         """Evaluation goal observations float32[n_goals, 2] (same cells for every layout)."""
         return jnp.asarray(FAMILIES[self.family].goals, jnp.float32)
+
+    # Goal-reaching protocols (zsbfm.evaluate), the first one the official score:
+    #   "paper":        the family's start cell, one goal in each other room (the paper's);
+    #   "dense":        the start cell, every other free cell a goal;
+    #   "random_start": the family's random_start_goals, each from RANDOM_START_REPEATS
+    #                   uniformly random free start cells other than the goal.
+    eval_protocols = ("paper", "dense", "random_start")
+
+    def eval_tasks(self, ctx: GridContext, protocol: str, key: Array) -> tuple[Array, Array, Array]:
+        """(starts float32[G, 2], goals float32[G, 2], valid bool[G]) of a protocol in one
+        layout; G is fixed per protocol, invalid tasks (dense: walls, the start) are not scored."""
+        fam = FAMILIES[self.family]
+        start = jnp.asarray(fam.start, jnp.float32)
+        if protocol == "paper":
+            goals = self.eval_goals(ctx)
+            return jnp.broadcast_to(start, goals.shape), goals, jnp.ones(goals.shape[0], bool)
+        if protocol == "dense":
+            goals = self.states()
+            valid = ~ctx.walls.reshape(-1) & (self.state_index(goals) != self.state_index(start))
+            return jnp.broadcast_to(start, goals.shape), goals, valid
+        if protocol == "random_start":
+            goals = jnp.repeat(jnp.asarray(fam.random_start_goals, jnp.float32), RANDOM_START_REPEATS, 0)
+            free = ~ctx.walls.reshape(-1)
+            logits = jnp.where(free[None] & (jnp.arange(self.num_states)[None] != self.state_index(goals)[:, None]),
+                               0.0, -jnp.inf)                                      # [G, cells]
+            starts = self.states()[jax.random.categorical(key, logits, axis=-1)]
+            return starts, goals, ~ctx.walls[goals[:, 1].astype(int), goals[:, 0].astype(int)]
+        raise ValueError(f"unknown protocol {protocol!r} for {self.family}: expected one of {self.eval_protocols}")
 
     # -- dynamics -----------------------------------------------------------------------
     def reset(self, key: Array, ctx: GridContext, goal: Array | None = None,

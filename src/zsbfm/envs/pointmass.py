@@ -228,6 +228,26 @@ class PointMass:
         flat = jnp.argmax(jnp.where(dist < SIZE * SIZE, dist, -1).reshape(-1))
         return ((jnp.stack([flat % SIZE, flat // SIZE]) + 0.5) * UNIT).astype(jnp.float32)[None]
 
+    # Goal-reaching protocols (zsbfm.evaluate), the first one the official score:
+    #   "paper": the first open cell to the BFS-farthest one (the authors');
+    #   "dense": the same start, every other open cell's centre a goal.
+    eval_protocols = ("paper", "dense")
+
+    def eval_tasks(self, ctx: MazeContext, protocol: str, key: Array) -> tuple[Array, Array, Array]:
+        """(starts float32[G, 2], goals float32[G, 2], valid bool[G]) of a protocol in one maze."""
+        start = self.eval_start(ctx)
+        if protocol == "paper":
+            goals = self.eval_goals(ctx)
+            return jnp.broadcast_to(start, goals.shape), goals, jnp.ones(goals.shape[0], bool)
+        if protocol == "dense":
+            y, x = jnp.mgrid[0:SIZE, 0:SIZE]
+            cells = jnp.stack([x.reshape(-1), y.reshape(-1)], -1)
+            goals = ((cells + 0.5) * UNIT).astype(jnp.float32)
+            flat_start = self.start_cell(ctx)
+            valid = ~ctx.walls.reshape(-1) & ~jnp.all(cells == flat_start, -1)
+            return jnp.broadcast_to(start, goals.shape), goals, valid
+        raise ValueError(f"unknown protocol {protocol!r} for pointmass: expected one of {self.eval_protocols}")
+
     # -- dynamics ---------------------------------------------------------------------------
     def reset(self, key: Array, ctx: MazeContext, goal: Array | None = None,
               start: Array | None = None) -> EnvState:

@@ -21,7 +21,8 @@ def draw_grid(ax, walls, values=None, actions=None, start=None, goals=(), trajec
     if values is not None:
         v = np.ma.masked_array(np.asarray(values, float), mask=walls)
         im = ax.imshow(v, cmap="viridis", origin="upper")
-        ax.figure.colorbar(im, ax=ax, fraction=0.046, pad=0.04)
+        cbar = ax.figure.colorbar(im, ax=ax, fraction=0.046, pad=0.04)
+        cbar.set_label("V(s) = max_a Q(s, a)", fontsize=7)
     ax.imshow(np.ma.masked_array(np.ones_like(walls, float), mask=~walls), cmap="gray_r",
               vmin=0, vmax=1.5, origin="upper")
     if actions is not None:

@@ -90,13 +90,16 @@ class ForwardNet(nn.Module):
 
 
 class TwinForward(ForwardNet):
-    """Two independent ForwardNets (same fields) evaluated together: output has a leading
-    axis of 2; parameters under "F" with a leading axis of 2."""
+    """`heads` independent ForwardNets (same fields; 2 = the twin F) evaluated together as
+    one batched network: output has a leading axis of `heads`; parameters under "F" with a
+    leading axis of `heads`."""
+
+    heads: int = 2
 
     @nn.compact
     def __call__(self, obs, task, action=None):
         twin = nn.vmap(ForwardNet, variable_axes={"params": 0}, split_rngs={"params": True},
-                       in_axes=None, out_axes=0, axis_size=2)
+                       in_axes=None, out_axes=0, axis_size=self.heads)
         fields = {f.name: getattr(self, f.name) for f in dataclasses.fields(ForwardNet)
                   if f.name not in ("parent", "name")}
         return twin(**fields, name="F")(obs, task, action)

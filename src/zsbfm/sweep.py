@@ -1,0 +1,157 @@
+"""Hyperparameter sweeps through vmap: every grid point x seed of a sweep is one row of a
+single compiled program.
+
+    python -m zsbfm sweep --env fourrooms --algo oracle --grid lr=1e-4,3e-4 tau=0.01,0.05 --seeds 2
+
+The grid's scalar settings (`config.SWEEPABLE`: learning rates, Polyak rates, gamma,
+temperature, ...) enter the program as traced values (`Config.with_traced`), so a 2 x 3
+grid of them with 2 seeds trains 12 rows with one compile. Fields that change shapes or
+control flow (widths, batch, d, splus, ...) give one program per combination of their
+values ("groups", trained one after another). Every point is validated as a concrete
+Config before anything compiles, with the same one-line errors as `--set`.
+
+A sweep writes runs/<name>/: sweep.json (the grid, and per point its official score and
+every protocol's score per seed, and its learning curve if cfg.eval_every > 0), sweep.md
+(the table), sweep.png (bars per point) and curves.png (learning curves, when logged);
+each group trains in runs/<name>/<group>/, checkpointed and resumable like a run.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import itertools
+import json
+import os
+from typing import Any
+
+import numpy as np
+
+from zsbfm.config import SWEEPABLE, Config
+
+
+def parse_grid(cfg: Config, items: list[str] | tuple[str, ...]) -> dict[str, list]:
+    """["lr=1e-4,3e-4", "f_hidden=256/512,512"] -> {"lr": [1e-4, 3e-4], "f_hidden": [(256,), (512, 512)]}.
+
+    Scalar values are comma-separated; a tuple field's alternatives are separated by "/"
+    (each one comma-separated, as in --set). Each value is parsed and validated as
+    `cfg.with_overrides` does, so a bad one fails with the same message."""
+    grid: dict[str, list] = {}
+    for item in items:
+        if "=" not in item:
+            raise ValueError(f"grid entry {item!r} must look like field=v1,v2,...")
+        k, vals = item.split("=", 1)
+        tuple_field = isinstance(getattr(cfg, k, None), tuple)
+        alternatives = vals.split("/") if tuple_field else vals.split(",")
+        if k in grid:
+            raise ValueError(f"grid field {k!r} given twice")
+        parsed = []
+        for v in alternatives:
+            if not v:
+                raise ValueError(f"grid entry {item!r} has an empty value")
+            parsed.append(getattr(cfg.with_overrides([f"{k}={v}"]), k))
+        grid[k] = parsed
+    if not grid:
+        raise ValueError("an empty grid: give at least one field=v1,v2,...")
+    return grid
+
+
+def _label(point: dict) -> str:
+    def fmt(v):
+        return ",".join(map(str, v)) if isinstance(v, tuple) else f"{v:g}" if isinstance(v, float) else str(v)
+    return " ".join(f"{k}={fmt(v)}" for k, v in point.items()) or "base"
+
+
+@dataclasses.dataclass
+class SweepResult:
+    """One entry per grid point: its settings, its official and per-protocol scores per seed,
+    and its learning curve (a list of {"step", "flops", "wall_s", "eval/...": [per seed]})."""
+
+    cfg: Config
+    grid: dict
+    points: list[dict]
+    path: str
+
+    def table(self) -> str:
+        """The Markdown table: one row per point, every protocol's mean +- std over seeds."""
+        protos = sorted({p for pt in self.points for p in pt["protocols"]},
+                        key=lambda p: (p != "paper", p))
+        head = ["setting"] + [f"{split} {p}" for p in protos for split in ("train", "test")]
+        lines = ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
+        for pt in self.points:
+            cells = [pt["label"]]
+            for p in protos:
+                for split in ("train", "test"):
+                    v = np.asarray(pt["protocols"].get(p, {}).get(split, [np.nan]), float)
+                    cells.append(f"{v.mean():.3f} +- {v.std():.3f}")
+            lines.append("| " + " | ".join(cells) + " |")
+        return "\n".join(lines)
+
+
+def sweep(cfg: Config, grid: dict[str, list], resume: bool = True, progress: bool = True) -> SweepResult:
+    """Train every point of `grid` ({field: [values]}) x cfg.num_seeds seeds; see the module
+    docstring. Seed i of every point uses the key of seed i of a plain run of that point's
+    Config, so a point's scores equal those of `zsbfm.train` on it (up to float summation
+    order)."""
+    from zsbfm.train import final_results, make_train, prepare_run_dir, run_loop, seed_keys
+
+    unknown = sorted(set(grid) - {f.name for f in dataclasses.fields(Config)})
+    if unknown:
+        raise ValueError(f"unknown Config fields {unknown} in the grid")
+    scalar = {k: v for k, v in grid.items() if k in SWEEPABLE}
+    shaped = {k: v for k, v in grid.items() if k not in SWEEPABLE}
+    groups = [dict(zip(shaped, vals)) for vals in itertools.product(*shaped.values())]
+    scalar_points = [dict(zip(scalar, vals)) for vals in itertools.product(*scalar.values())]
+    # validate every point as a concrete Config before anything compiles
+    plans = []
+    for gi, group in enumerate(groups):
+        cfg_g = dataclasses.replace(cfg, **group, name=f"{cfg.run_name}/g{gi}")
+        for point in scalar_points:
+            dataclasses.replace(cfg_g, **point)
+        plans.append((group, cfg_g))
+    root = os.path.abspath(os.path.join(cfg.runs_dir, cfg.run_name))
+    os.makedirs(root, exist_ok=True)
+    spec = {"grid": {k: [list(v) if isinstance(v, tuple) else v for v in vals] for k, vals in grid.items()}}
+
+    points = []
+    for gi, (group, cfg_g) in enumerate(plans):
+        run_dir = prepare_run_dir(cfg_g, resume, extra=dict(spec, group=_jsonable(group)))
+        trainer = make_train(cfg_g)
+        n, S = len(scalar_points), cfg.num_seeds
+        keys = np.tile(np.asarray(seed_keys(cfg_g)), (n, 1))                # row = point * S + seed
+        hp = {k: np.repeat(np.asarray([p[k] for p in scalar_points], np.float32), S) for k in scalar}
+        label = f"sweep {cfg.run_name} group {gi + 1}/{len(plans)} ({n} points x {S} seeds)"
+        loop = run_loop(trainer, run_dir, keys, hp, resume, progress, label=label)
+        res = final_results(trainer, loop)
+        for pi, point in enumerate(scalar_points):
+            rows = slice(pi * S, (pi + 1) * S)
+            settings = {**group, **point}
+            curve = [{k: (v[rows] if isinstance(v, list) and k.startswith("eval/") else v)
+                      for k, v in m.items() if k in ("step", "flops", "wall_s") or k.startswith("eval/")}
+                     for m in loop.metrics if any(k.startswith("eval/") for k in m)]
+            points.append({"label": _label(settings), "settings": _jsonable(settings), "group": gi,
+                           "train": res["train"][rows], "test": res["test"][rows],
+                           "protocols": {p: {s: v[rows] for s, v in d.items()} for p, d in res["protocols"].items()},
+                           "curve": curve, "train_seconds_group": round(loop.train_seconds, 1)})
+    result = SweepResult(cfg=cfg, grid=grid, points=points, path=root)
+    with open(os.path.join(root, "sweep.json"), "w") as f:
+        json.dump({**spec, "config": cfg.to_dict(), "points": points}, f, indent=1)
+    with open(os.path.join(root, "sweep.md"), "w") as f:
+        f.write(f"# sweep {cfg.run_name}: {cfg.env} {cfg.algo}, {cfg.num_seeds} seeds, {cfg.steps} steps\n\n")
+        f.write(result.table() + "\n")
+    try:
+        from zsbfm.plots import plot_sweep
+
+        plot_sweep(result, root)
+    except Exception as e:  # plots must never lose a finished sweep
+        print(f"warning: plotting failed: {e!r}")
+    return result
+
+
+def _jsonable(d: dict) -> dict:
+    return {k: list(v) if isinstance(v, tuple) else v for k, v in d.items()}
+
+
+def load_sweep(path: str) -> dict[str, Any]:
+    """sweep.json of a finished sweep."""
+    with open(os.path.join(path, "sweep.json")) as f:
+        return json.load(f)

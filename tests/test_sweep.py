@@ -1,0 +1,121 @@
+"""Sweeps through vmap, evaluation protocols and learning curves."""
+
+import dataclasses
+import json
+import os
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+import zsbfm
+from zsbfm.envs import index_contexts
+from zsbfm.sweep import parse_grid, sweep
+from zsbfm.train import TRACE_COUNTS
+
+from conftest import tiny_config
+
+
+def test_two_by_two_sweep_equals_four_runs_and_compiles_once(tmp_path):
+    """Every point of a 2 x 2 sweep (2 seeds each, one program) equals the separate run of
+    that point's Config: same scores, same final losses (every row got its own settings)."""
+    cfg = tiny_config(tmp_path, steps=20, eval_protocols="official", name="sw")
+    grid = parse_grid(cfg, ["lr=1e-4,1e-2", "tau=0.05,0.5"])
+    before = TRACE_COUNTS["run_chunk"]
+    res = sweep(cfg, grid, progress=False)
+    assert TRACE_COUNTS["run_chunk"] - before == 1, "a sweep of scalar settings is one program"
+    assert [p["label"] for p in res.points] == ["lr=0.0001 tau=0.05", "lr=0.0001 tau=0.5",
+                                               "lr=0.01 tau=0.05", "lr=0.01 tau=0.5"]
+    rows = [json.loads(line) for line in open(tmp_path / "runs" / "sw" / "g0" / "metrics.jsonl")]
+    losses = np.asarray(rows[-1]["fb_loss"]).reshape(4, 2)               # [point, seed]
+    for i, p in enumerate(res.points):
+        single = zsbfm.train(dataclasses.replace(cfg, name=f"single{i}", **p["settings"]), progress=False)
+        assert p["train"] == single.results["train"] and p["test"] == single.results["test"]
+        np.testing.assert_allclose(losses[i], single.metrics[-1]["fb_loss"], rtol=1e-4)
+    assert len({round(float(v), 4) for v in losses[:, 0]}) == 4
+    for f in ("sweep.json", "sweep.md", "sweep.png"):
+        assert os.path.exists(tmp_path / "runs" / "sw" / f)
+
+
+def test_shape_changing_fields_compile_one_program_each(tmp_path):
+    cfg = tiny_config(tmp_path, steps=10, eval_protocols="official", name="sw3", num_seeds=1)
+    before = TRACE_COUNTS["run_chunk"]
+    res = sweep(cfg, parse_grid(cfg, ["d=4,8", "lr=1e-3,2e-3"]), progress=False)
+    assert TRACE_COUNTS["run_chunk"] - before == 2
+    assert [p["settings"] for p in res.points] == [{"d": 4, "lr": 1e-3}, {"d": 4, "lr": 2e-3},
+                                                  {"d": 8, "lr": 1e-3}, {"d": 8, "lr": 2e-3}]
+
+
+@pytest.mark.parametrize("item,match", [
+    ("lr=1e-3,-1", "Config.lr=-1"),
+    ("gamma=0.9,1.5", "Config.gamma=1.5"),
+    ("lrr=1", "unknown Config field 'lrr'"),
+    ("lr", "must look like field=v1,v2"),
+    ("d=8,x", "cannot parse 'x'"),
+])
+def test_bad_grid_values_fail_like_set(item, match):
+    cfg = zsbfm.Config.preset("fourrooms", "oracle")
+    with pytest.raises(ValueError, match=match):
+        parse_grid(cfg, [item])
+
+
+def test_cli_sweep_reports_bad_values_in_one_line(capsys):
+    from zsbfm.cli import main
+
+    with pytest.raises(SystemExit) as e:
+        main(["sweep", "--grid", "lr=1e-3,-2"])
+    assert e.value.code == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "Config.lr=-2" in err[0]
+
+
+def test_protocols_of_the_gridworld():
+    env = zsbfm.make_env("fourrooms")
+    ctx = index_contexts(env.contexts("test"), 3)
+    walls = np.asarray(ctx.walls)
+    starts, goals, valid = env.eval_tasks(ctx, "paper", jax.random.PRNGKey(0))
+    assert goals.tolist() == [[8, 8], [2, 8], [8, 2]] and starts.tolist() == [[1, 1]] * 3
+    starts, goals, valid = env.eval_tasks(ctx, "dense", jax.random.PRNGKey(0))
+    assert int(valid.sum()) == int((~walls).sum()) - 1          # every free cell but the start
+    g = np.asarray(goals)[np.asarray(valid)].astype(int)
+    assert not walls[g[:, 1], g[:, 0]].any()
+    starts, goals, valid = env.eval_tasks(ctx, "random_start", jax.random.PRNGKey(1))
+    s, g = np.asarray(starts).astype(int), np.asarray(goals).astype(int)
+    assert len(g) == 20 and {tuple(x) for x in g} == {(2, 2), (8, 8), (2, 8), (8, 2)}
+    assert not walls[s[:, 1], s[:, 0]].any() and not (s == g).all(1).any()
+    assert len({tuple(x) for x in s}) > 5                          # random, not one cell
+    with pytest.raises(ValueError, match="unknown protocol"):
+        env.eval_tasks(ctx, "nope", jax.random.PRNGKey(0))
+
+
+def test_learning_curve_logs_every_protocol_and_ends_at_the_results(tmp_path):
+    cfg = tiny_config(tmp_path, steps=40, eval_every=2, name="curve")
+    before = TRACE_COUNTS["evaluate_protocols"]
+    run = zsbfm.train(cfg, progress=False)
+    assert TRACE_COUNTS["evaluate_protocols"] - before == 1, "the curve's evaluation compiles once"
+    evals = [m for m in run.metrics if "eval/train/dense" in m]
+    assert [m["step"] for m in evals] == [20, 40]
+    assert all(m["flops"] > 0 for m in evals) and evals[1]["flops"] == pytest.approx(2 * evals[0]["flops"])
+    for protocol in ("paper", "dense", "random_start"):
+        for split in ("train", "test"):
+            assert run.results["protocols"][protocol][split] == evals[-1][f"eval/{split}/{protocol}"]
+    # the official protocol's curve point is the official score
+    np.testing.assert_allclose(run.results["train"], run.results["protocols"]["paper"]["train"], atol=1e-4)
+    score, valid = zsbfm.evaluate(run, split="train", protocol="dense")
+    from zsbfm.evaluate import protocol_score
+
+    np.testing.assert_allclose(np.asarray(protocol_score(score, valid)), run.results["protocols"]["dense"]["train"],
+                               atol=1e-4)
+    assert os.path.exists(tmp_path / "runs" / "curve" / "curves.png")
+
+
+@pytest.mark.parametrize("algo", ["fb", "bfb", "rfb", "oracle", "hilp", "lap", "random"])
+def test_evaluate_reproduces_the_run_results(tmp_path, algo):
+    extra = dict(steps=20, enc_steps=10) if algo in ("bfb", "rfb") else dict(steps=20)
+    cfg = tiny_config(tmp_path, algo=algo, eval_protocols="official", name=f"ev-{algo}", **extra)
+    run = zsbfm.train(cfg, progress=False)
+    loaded = zsbfm.load(os.path.join(cfg.runs_dir, cfg.run_name))
+    for split in ("train", "test"):
+        again = np.asarray(zsbfm.evaluate(loaded, split=split), np.float32).mean((1, 2))
+        np.testing.assert_allclose(again, run.results[split], atol=1e-6)
