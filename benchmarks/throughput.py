@@ -84,15 +84,31 @@ def collection(layouts=20, episodes=500):
     return timed(f, jax.random.PRNGKey(0))
 
 
-def updates(algo, seeds, steps=200):
-    cfg = zsbfm.Config.preset("fourrooms", algo, num_seeds=seeds, chunk_steps=steps)
+def matmul_peak(n=2048, repeat=5):
+    """Dense float32 matmul GFLOP/s through XLA on this machine, now (n x n by n x n)."""
+    a = jax.random.normal(jax.random.PRNGKey(0), (n, n), jnp.float32)
+    f = jax.jit(lambda x: x @ x)
+    return 2 * n**3 / timed(f, a, repeat=repeat) / 1e9
+
+
+def updates(algo, seeds, steps=200, size="cpu", **overrides):
+    """(updates/s over all seeds, GFLOP per update of one seed) of a preset's FB-phase chunk.
+
+    GFLOP per update: XLA's cost analysis of one compiled update (zsbfm.train.update_flops)."""
+    from zsbfm.train import update_flops
+
+    cfg = zsbfm.Config.preset("fourrooms", algo, size, num_seeds=seeds, chunk_steps=steps, **overrides)
+    if cfg.steps % steps or (algo in ("bfb", "rfb") and cfg.enc_steps % steps):
+        cfg = cfg.replace(steps=cfg.steps // steps * steps, enc_steps=max(steps, cfg.enc_steps // steps * steps))
     tr = make_train(cfg)
     carry = jax.jit(jax.vmap(tr.init))(seed_keys(cfg))
     ds = jax.jit(jax.vmap(tr.collect_data))(carry)
-    f = jax.jit(jax.vmap(tr.run_chunk, in_axes=(0, 0, None)))
+    f = jax.jit(jax.vmap(tr.run_chunk, in_axes=(0, 0, None, None)))
     # a chunk in the FB phase (for belief algos: after the encoder phase)
     chunk = jnp.int32(cfg.num_chunks - 1)
-    return seeds * steps / timed(lambda c: f(c, ds, chunk), carry, repeat=2)
+    rate = seeds * steps / timed(lambda c: f(c, ds, chunk, {}), carry, repeat=2)
+    cumulative = update_flops(tr, carry, ds, {})
+    return rate, (cumulative(cfg.steps) - cumulative(cfg.steps - 1)) / 1e9  # an FB-phase update
 
 
 def main():
@@ -111,10 +127,20 @@ def main():
         print(f"| antwind MJX env steps/s ({n_ant} envs x 100 steps, 5 physics steps each) "
               f"| {env_steps('antwind', n_ant, 100):,.0f} |", flush=True)
     print(f"| antwind native MuJoCo env steps/s (1 thread, 5 physics steps each) | {native_antwind_steps():,.0f} |")
-    for algo in a.algos:
-        for seeds in (1, 3):
-            print(f"| {algo} CPU-preset updates/s x seeds ({seeds} seed{'s' if seeds > 1 else ''}) "
-                  f"| {updates(algo, seeds, 100 if a.quick else 200):,.0f} |", flush=True)
+    steps = 100 if a.quick else 200
+    peak = matmul_peak()
+    print(f"| f32 matmul peak through XLA (2048^2, this run) | {peak:,.0f} GFLOP/s |")
+    print("\n| update (fourrooms) | seeds | updates/s | GFLOP / update | GFLOP/s | of matmul peak |\n|---|---|---|---|---|---|")
+    rows = [(algo, "cpu", seeds, {}) for algo in a.algos for seeds in (1, 3)]
+    if not a.quick:  # the paper's sizes: a few updates are enough to time them
+        rows += [("fb", "paper", 1, {}), ("bfb", "paper", 1, {})]
+    for algo, size, seeds, over in rows:
+        n = steps if size == "cpu" else 10
+        rate, gflop = updates(algo, seeds, n, size, **over)
+        print(f"| {algo} {size} preset | {seeds} | {rate:,.1f} | {gflop:.2f} | {rate * gflop:,.0f} "
+              f"| {rate * gflop / peak:.0%} |", flush=True)
+    peak_after = matmul_peak()
+    print(f"\nmatmul peak again after the updates: {peak_after:,.0f} GFLOP/s (the fractions use the first)")
 
 
 if __name__ == "__main__":

@@ -66,48 +66,53 @@ def greedy_dense(M, walls, start):
     return ok / n
 
 
-SWAP = "--swap-context" in sys.argv
-for path in [a for a in sys.argv[1:] if a != "--swap-context"]:
-    run = zsbfm.load(path)
-    cfg = run.cfg
-    if cfg.target_policy != "uniform":
-        print(f"{path}: target_policy={cfg.target_policy!r}; this compares with the uniform walk's measure")
-    env = make_env(cfg.env, n_train=cfg.n_train_layouts, episode_len=cfg.episode_len)
-    agent = make_agent(cfg, env)
-    ctxs = env.contexts("train")
-    n = min(cfg.n_train_layouts, 20)
-    cells = env.states()
-    S = env.size
-    start = tuple(int(v) for v in np.asarray(env.eval_start(index_contexts(ctxs, 0))))
-    from zsbfm.data import collect
-    ds = collect(env, jax.random.PRNGKey(0), ctxs, cfg.episodes_per_layout)
-    nxt = np.asarray(env.state_index(ds.obs[:, 1:])).reshape(-1)
-    rho = np.bincount(nxt, minlength=S * S) / nxt.size
-    Ms = [exact_measure(np.asarray(ctxs.walls[l]), cfg.gamma) for l in range(n)]
-    frees = [~np.asarray(ctxs.walls[l]).reshape(-1) for l in range(n)]
-    X = np.concatenate([(M * f[:, None, None]).reshape(-1, S * S) for M, f in zip(Ms, frees)], 0)
-    U, sv, Vt = np.linalg.svd(X, full_matrices=False)
-    Xd = ((U[:, :cfg.d] * sv[:cfg.d]) @ Vt[:cfg.d]).reshape(n, S * S, 4, S * S)
-    floor = np.linalg.norm(Xd - X.reshape(n, S * S, 4, S * S)) / np.linalg.norm(X)
-    exact_ok = np.mean([greedy_dense(M, np.asarray(ctxs.walls[l]), start) for l, M in enumerate(Ms[:4])])
-    seeds = jax.tree_util.tree_leaves(run.params)[0].shape[0]
-    for seed in range(seeds):
-        params = run.seed_params(seed)
-        errs, oks = [], []
-        B = np.asarray(agent.backward(params.B, cells))
-        for l in range(n):
-            ctx = index_contexts(ctxs, l)
-            from zsbfm.evaluate import context_episode
-            ctx_h = index_contexts(ctxs, (l + 1) % n) if SWAP else ctx
-            h = agent.context_h(params, context_episode(env, jax.random.PRNGKey(l), ctx_h, cfg.context_len))
-            z = jnp.asarray(B[start[1] * S + start[0]])
-            task = Task(z=jnp.broadcast_to(z, (S * S, cfg.d)), h=jnp.broadcast_to(h, (S * S, h.shape[-1])))
-            F = np.asarray(agent.forward(params.F, cells, task).mean(0))           # [N, A, d]
-            Mh = np.einsum("sad,td->sat", F, B) * rho[None, None]
-            f = frees[l]
-            err = np.linalg.norm((Mh - Ms[l])[f][:, :, f]) / np.linalg.norm(Ms[l][f][:, :, f])
-            errs.append(err)
-            if l < 4:
-                oks.append(greedy_dense(Mh, np.asarray(ctxs.walls[l]), start))
-        print(f"{path} seed {seed}: rel_err {np.mean(errs):.3f} (rank-{cfg.d} floor {floor:.3f}); "
-              f"greedy dense on M_hat {np.mean(oks):.3f} (first 4 layouts; exact M {exact_ok:.3f})")
+def main():
+    SWAP = "--swap-context" in sys.argv
+    for path in [a for a in sys.argv[1:] if a != "--swap-context"]:
+        run = zsbfm.load(path)
+        cfg = run.cfg
+        if cfg.target_policy != "uniform":
+            print(f"{path}: target_policy={cfg.target_policy!r}; this compares with the uniform walk's measure")
+        env = make_env(cfg.env, n_train=cfg.n_train_layouts, episode_len=cfg.episode_len)
+        agent = make_agent(cfg, env)
+        ctxs = env.contexts("train")
+        n = min(cfg.n_train_layouts, 20)
+        cells = env.states()
+        S = env.size
+        start = tuple(int(v) for v in np.asarray(env.eval_start(index_contexts(ctxs, 0))))
+        from zsbfm.data import collect
+        ds = collect(env, jax.random.PRNGKey(0), ctxs, cfg.episodes_per_layout)
+        nxt = np.asarray(env.state_index(ds.obs[:, 1:])).reshape(-1)
+        rho = np.bincount(nxt, minlength=S * S) / nxt.size
+        Ms = [exact_measure(np.asarray(ctxs.walls[l]), cfg.gamma) for l in range(n)]
+        frees = [~np.asarray(ctxs.walls[l]).reshape(-1) for l in range(n)]
+        X = np.concatenate([(M * f[:, None, None]).reshape(-1, S * S) for M, f in zip(Ms, frees)], 0)
+        U, sv, Vt = np.linalg.svd(X, full_matrices=False)
+        Xd = ((U[:, :cfg.d] * sv[:cfg.d]) @ Vt[:cfg.d]).reshape(n, S * S, 4, S * S)
+        floor = np.linalg.norm(Xd - X.reshape(n, S * S, 4, S * S)) / np.linalg.norm(X)
+        exact_ok = np.mean([greedy_dense(M, np.asarray(ctxs.walls[l]), start) for l, M in enumerate(Ms[:4])])
+        seeds = jax.tree_util.tree_leaves(run.params)[0].shape[0]
+        for seed in range(seeds):
+            params = run.seed_params(seed)
+            errs, oks = [], []
+            B = np.asarray(agent.backward(params.B, cells))
+            for l in range(n):
+                ctx = index_contexts(ctxs, l)
+                from zsbfm.evaluate import context_episode
+                ctx_h = index_contexts(ctxs, (l + 1) % n) if SWAP else ctx
+                h = agent.context_h(params, context_episode(env, jax.random.PRNGKey(l), ctx_h, cfg.context_len))
+                z = jnp.asarray(B[start[1] * S + start[0]])
+                task = Task(z=jnp.broadcast_to(z, (S * S, cfg.d)), h=jnp.broadcast_to(h, (S * S, h.shape[-1])))
+                F = np.asarray(agent.forward(params.F, cells, task).mean(0))           # [N, A, d]
+                Mh = np.einsum("sad,td->sat", F, B) * rho[None, None]
+                f = frees[l]
+                err = np.linalg.norm((Mh - Ms[l])[f][:, :, f]) / np.linalg.norm(Ms[l][f][:, :, f])
+                errs.append(err)
+                if l < 4:
+                    oks.append(greedy_dense(Mh, np.asarray(ctxs.walls[l]), start))
+            print(f"{path} seed {seed}: rel_err {np.mean(errs):.3f} (rank-{cfg.d} floor {floor:.3f}); "
+                  f"greedy dense on M_hat {np.mean(oks):.3f} (first 4 layouts; exact M {exact_ok:.3f})")
+
+
+if __name__ == "__main__":
+    main()

@@ -10,7 +10,7 @@ import tyro
 
 
 def train(env: str = "fourrooms", algo: str = "fb", seeds: int = 3, size: str = "cpu",
-          name: str = "", runs_dir: str = "runs", no_resume: bool = False,
+          name: str = "", runs_dir: str = "runs", resume: bool = True, dataset: str = "",
           set: tuple[str, ...] = (), coordinator: str = "", num_processes: int = 0,
           process_id: int = -1) -> None:
     """Train all seeds of a preset together (vmapped), evaluate on train and test layouts.
@@ -22,7 +22,9 @@ def train(env: str = "fourrooms", algo: str = "fb", seeds: int = 3, size: str = 
         size: preset sizes: cpu (default, for a 2-core machine) | paper (the paper's GPU sizes).
         name: run name (default <env>-<algo>-<size>); output goes to <runs_dir>/<name>/.
         runs_dir: where runs are written.
-        no_resume: start afresh even if a checkpoint of this run exists.
+        resume: continue from this run's newest checkpoint (--no-resume: start afresh).
+        dataset: train on a saved dataset (.npz from `python -m zsbfm collect`, or your own
+            with the arrays obs, action, context_id) instead of collecting one per seed.
         set: Config overrides as field=value, e.g. --set steps=2000 lr=1e-3 f_hidden=512,512.
         coordinator: multi-process run: HOST:PORT of process 0 (default $JAX_COORDINATOR_ADDRESS);
             run the same command on every host with its own --process-id.
@@ -34,7 +36,9 @@ def train(env: str = "fourrooms", algo: str = "fb", seeds: int = 3, size: str = 
     from zsbfm.train import train as run_train
 
     cfg = Config.preset(env, algo, size, num_seeds=seeds, name=name, runs_dir=runs_dir).with_overrides(set)
-    run = run_train(cfg, resume=not no_resume)
+    if dataset:
+        cfg = cfg.replace(dataset=dataset)
+    run = run_train(cfg, resume=resume)
     import jax
 
     if jax.process_index() == 0:
@@ -63,21 +67,30 @@ def init_distributed(coordinator: str = "", num_processes: int = 0, process_id: 
     return True
 
 
-def evaluate(path: str, split: str = "test") -> None:
-    """Evaluate a saved run on a split (train | test) and print its score per seed (success
-    rate, or episode return for antwind)."""
+def evaluate(path: tyro.conf.Positional[str], split: str = "test", protocol: str = "") -> None:
+    """Evaluate a saved run on a split and print its score per seed (success rate, or episode
+    return for antwind): with the run's own evaluation keys, the numbers it reported.
+
+    Args:
+        path: the run directory, e.g. runs/fourrooms-fb-cpu.
+        split: train | test.
+        protocol: "" for the official score; or one of the env's protocols (gridworlds:
+            paper, dense, random_start; pointmass: paper, dense).
+    """
     import numpy as np
 
-    from zsbfm.envs import make_env
     from zsbfm.evaluate import evaluate as run_eval
-    from zsbfm.evaluate import metric_of
+    from zsbfm.evaluate import protocol_score
     from zsbfm.run import load
 
     run = load(path)
-    success = np.asarray(run_eval(run, split=split))
-    metric = metric_of(make_env(run.cfg.env))
-    print(json.dumps({"split": split, f"{metric}_per_seed": success.mean((1, 2)).round(4).tolist(),
-                      "mean": round(float(success.mean()), 4)}))
+    if protocol:
+        score = np.asarray(protocol_score(*run_eval(run, split=split, protocol=protocol)))
+    else:
+        score = np.asarray(run_eval(run, split=split), np.float32).mean((1, 2))
+    metric = run.results.get("metric", "success")
+    print(json.dumps({"split": split, "protocol": protocol or "official",
+                      f"{metric}_per_seed": score.round(4).tolist(), "mean": round(float(score.mean()), 4)}))
 
 
 def collect(env: str = "fourrooms", n_train: int = 0, episodes_per_layout: int = 0,
@@ -121,7 +134,7 @@ def collect(env: str = "fourrooms", n_train: int = 0, episodes_per_layout: int =
 
 
 def sweep(env: str = "fourrooms", algo: str = "fb", seeds: int = 2, size: str = "cpu",
-          name: str = "", runs_dir: str = "runs", no_resume: bool = False,
+          name: str = "", runs_dir: str = "runs", resume: bool = True,
           grid: tuple[str, ...] = (), set: tuple[str, ...] = ()) -> None:
     """Train every combination of a grid of settings x seeds, vmapped in one compiled program
     per group of shape-changing values; writes runs/<name>/sweep.{json,md,png}.
@@ -133,7 +146,7 @@ def sweep(env: str = "fourrooms", algo: str = "fb", seeds: int = 2, size: str = 
         size: preset sizes: cpu | paper.
         name: sweep name (default sweep-<env>-<algo>); output in <runs_dir>/<name>/.
         runs_dir: where runs are written.
-        no_resume: start afresh even if checkpoints of this sweep exist.
+        resume: continue from this sweep's checkpoints (--no-resume: start afresh).
         grid: field=v1,v2,... per swept field, e.g. --grid lr=1e-4,3e-4 tau=0.01,0.05;
             a tuple field's alternatives are separated by '/', e.g. f_hidden=256/512,512.
         set: Config overrides applied to every point, as in train.
@@ -144,7 +157,7 @@ def sweep(env: str = "fourrooms", algo: str = "fb", seeds: int = 2, size: str = 
 
     cfg = Config.preset(env, algo, size, num_seeds=seeds, name=name or f"sweep-{env}-{algo}",
                         runs_dir=runs_dir).with_overrides(set)
-    result = run_sweep(cfg, parse_grid(cfg, grid), resume=not no_resume)
+    result = run_sweep(cfg, parse_grid(cfg, grid), resume=resume)
     print(result.table())
     print(f"->  {result.path}")
 
@@ -167,6 +180,6 @@ def main(argv=None) -> None:
         tyro.extras.subcommand_cli_from_dict(
             {"train": train, "sweep": sweep, "evaluate": evaluate, "collect": collect}, args=argv,
             prog="python -m zsbfm")
-    except ValueError as e:  # configuration errors: one clear line, no traceback
+    except (ValueError, FileNotFoundError) as e:  # bad input: one clear line, no traceback
         print(f"error: {e}", file=sys.stderr)
         sys.exit(2)

@@ -38,17 +38,17 @@ ANTWIND_TRAIN_WINDS = 15               # 20 directions; the first three quadrant
 @dataclasses.dataclass(frozen=True)
 class Config:
     # --- what to run ---------------------------------------------------------------------
-    env: str = "fourrooms"
-    algo: str = "fb"
+    env: str = "fourrooms"      # environment: one of ENVS (zsbfm.make_env)
+    algo: str = "fb"            # algorithm: one of ALGOS (zsbfm.agents)
     size: str = "cpu"           # which preset the sizes came from: "cpu" or "paper" (GPU)
     name: str = ""              # run name; "" -> "<env>-<algo>-<size>"
     seed: int = 0               # master seed; seed i of the sweep uses split(PRNGKey(seed))[i]
     num_seeds: int = 3          # seeds trained together with jax.vmap
-    runs_dir: str = "runs"
+    runs_dir: str = "runs"      # runs are written to runs_dir/name/
 
     # --- data ------------------------------------------------------------------------------
-    n_train_layouts: int = 20
-    episodes_per_layout: int = 500
+    n_train_layouts: int = 20   # train contexts (layouts, mazes; antwind: its 15 train winds)
+    episodes_per_layout: int = 500  # behaviour episodes collected in each train context
     episode_len: int = 100      # must equal the environment's episode length
     context_len: int = 100      # transitions per context window (belief methods)
     # antwind only: the behaviour data (zsbfm.data.expert), cached under data_dir/antwind/
@@ -57,7 +57,10 @@ class Config:
     # train / test winds, the 1M-step one 533 / 607, and every method followed it (README)
     expert_steps: int = 1_000_000
     expert_noise: float = 0.2    # std of the Gaussian noise on the expert's actions in the data
-    data_dir: str = "datasets"
+    data_dir: str = "datasets"   # where cached datasets and experts live (antwind)
+    # a saved dataset (.npz: obs, action, context_id; zsbfm.data.dataset) shared by every seed;
+    # "" = the env's own data (collected per seed on device; antwind: its cached expert data)
+    dataset: str = ""
 
     # --- FB -----------------------------------------------------------------------------
     obs_encoding: str = "onehot"              # network input: "onehot" (grid coords) | "cell" | "raw"
@@ -68,13 +71,13 @@ class Config:
     f_arch: str = "reference"                 # F's layers: "reference" | "normed_trunk" (nets/fb.py)
     b_hidden: tuple[int, ...] = (128, 128)    # B hidden layers
     f_heads: int = 2                          # independent F heads: 2 = twin F (min for the policy), 1 = single
-    lr: float = 1e-3
+    lr: float = 1e-3                          # Adam learning rate of F, B (and actor / features)
     lr_schedule: str = "constant"             # FB/actor/feature optimiser: "constant" | "cosine" (to 0 at the last step)
-    batch_size: int = 256
+    batch_size: int = 256                     # transitions per update
     gamma: float = 0.95                       # paper: 0.99 (see README: CPU budget)
     tau: float = 0.05                         # Polyak rate of the target networks (paper: 0.05)
     z_mix: float = 0.5                        # probability that a training z is B(s)
-    ortho_coef: float = 1.0
+    ortho_coef: float = 1.0                   # weight of B's orthonormality loss
     twin_target: str = "mean"                 # combine the twin target measures: "mean" | "min"
     target_policy: str = "greedy"             # "greedy" | "boltzmann" | "uniform"
     temperature: float = 1.0                  # Boltzmann target-policy temperature
@@ -82,14 +85,14 @@ class Config:
     # "batch" (the batch's next states, i != j) | "states" (splus_batch independent dataset
     # states) | "exact" (every state of a finite-state env, weighted by its data frequency)
     splus: str = "batch"
-    splus_batch: int = 1024
+    splus_batch: int = 1024                   # states per update for splus="states"
     clip_norm: float = 0.0                    # global gradient-norm clip of F/B/actor (0: none)
     lr_B: float = 0.0                         # B's learning rate (0: lr)
 
     # --- continuous actions (pointmass): TD3-style actor ------------------------------------
-    actor_hidden: tuple[int, ...] = (256, 256)
+    actor_hidden: tuple[int, ...] = (256, 256)  # actor MLP hidden layers
     target_noise: float = 0.2        # std of the target-policy smoothing noise
-    target_noise_clip: float = 0.3
+    target_noise_clip: float = 0.3   # clip of that noise
     actor_bc: float = 0.0            # TD3+BC weight: 0 = the paper's pure -Q actor (agents/fb.py)
 
     # --- Belief-FB / Rotation-FB (ignored by fb) -------------------------------------------
@@ -97,11 +100,11 @@ class Config:
     h_in_sa: bool = False        # h also enters F's (s, a) preprocessor (paper: only with z)
     h_cond: str = "concat"       # how h conditions F: "concat" (input only) | "film" | "outer" (nets/fb.py)
     enc_embed: int = 32          # transformer width
-    enc_heads: int = 4
-    enc_layers: int = 2
-    enc_mlp: int = 64
+    enc_heads: int = 4           # attention heads per block
+    enc_layers: int = 2          # transformer blocks (0: a per-token MLP, mean-pooled)
+    enc_mlp: int = 64            # width of each block's MLP
     pred_hidden: tuple[int, ...] = (64, 64)     # predictor g(s, a, h) -> s'
-    enc_lr: float = 1e-3
+    enc_lr: float = 1e-3         # Adam learning rate of the encoder pre-training
     enc_beta: float = 1e-6       # weight of KL(q(h | episode) || N(0, I)) in the encoder loss
     enc_contrast: float = 0.0    # weight of a same-layout InfoNCE on h (agents/belief.py; 0 = paper)
     enc_cell_tokens: bool = False  # pointmass: tokens also hold the one-hot map cell of s (agents/belief.py)
@@ -112,6 +115,7 @@ class Config:
     encoder_mode: str = "staged"  # "staged": f_dyn first, then FB on stop_grad(h); "joint"
     windows_per_episode: int = 4  # h-table windows per episode when context_len < episode_len
     kappa: float = 50.0          # vMF concentration of Rotation-FB's training z
+    oracle_context: str = "id"   # what the oracle's F is told: "id" (one-hot train layout) | "walls" (agents/oracle.py)
 
     # --- successor-feature baselines: HILP, Laplacian (ignored by the FB family) ---------
     feat_hidden: tuple[int, ...] = (128, 128)  # phi(s) network
@@ -129,7 +133,7 @@ class Config:
     data_parallel: int = 1       # size of the "data" mesh axis each seed's batch is split over
 
     # --- evaluation ------------------------------------------------------------------------
-    eval_episode_len: int = 100
+    eval_episode_len: int = 100  # steps of each evaluation episode
     eval_every: int = 0          # chunks between learning-curve evaluations (0: only at the end)
     eval_protocols: str = "all"  # "all": every protocol of the env (paper, dense, ...) | "official"
 
@@ -168,6 +172,8 @@ class Config:
             bad("eval_every", self.eval_every, "a non-negative integer (chunks; 0: evaluate only at the end)")
         if self.eval_protocols not in ("all", "official"):
             bad("eval_protocols", self.eval_protocols, "'all' or 'official'")
+        if self.oracle_context not in ("id", "walls"):
+            bad("oracle_context", self.oracle_context, "'id' or 'walls'")
         if self.splus not in SPLUS:
             bad("splus", self.splus, f"one of {SPLUS}")
         if self.splus == "exact" and self.env in CONTINUOUS_ENVS:
@@ -219,9 +225,12 @@ class Config:
             bad("hilp_expectile", self.hilp_expectile, "0 < hilp_expectile < 1")
         if not 0.0 <= self.hilp_p_traj_goal <= 1.0:
             bad("hilp_p_traj_goal", self.hilp_p_traj_goal, "0 <= hilp_p_traj_goal <= 1")
+        if self.steps % self.chunk_steps:
+            bad("steps", self.steps, f"a multiple of chunk_steps={self.chunk_steps}")
         if self.algo in BELIEF_ALGOS and self.encoder_mode == "staged":
             if self.enc_steps >= self.steps:
-                bad("enc_steps", self.enc_steps, f"fewer than steps={self.steps} (FB trains after it)")
+                bad("enc_steps", self.enc_steps, f"fewer than steps={self.steps} (FB trains after it; "
+                    f"e.g. enc_steps={max(self.chunk_steps, self.steps * 2 // 7 // self.chunk_steps * self.chunk_steps)})")
             if self.enc_steps % self.chunk_steps:
                 bad("enc_steps", self.enc_steps,
                     f"a multiple of chunk_steps={self.chunk_steps} (no chunk straddles two phases)")
@@ -262,8 +271,6 @@ class Config:
             bad("data_parallel", self.data_parallel,
                 f"a divisor of batch_size={self.batch_size} (each device of the 'data' mesh axis "
                 "takes batch_size / data_parallel transitions)")
-        if self.steps % self.chunk_steps:
-            bad("steps", self.steps, f"a multiple of chunk_steps={self.chunk_steps}")
         if self.env == "doors" and self.n_train_layouts > 29:
             bad("n_train_layouts", self.n_train_layouts,
                 "at most 29 for doors (49 layouts, 20 held out for test)")
@@ -277,7 +284,7 @@ class Config:
     def context_dim(self) -> int:
         """Dimension of h: the encoder's output for bfb/rfb, the number of train layouts for
         oracle (a one-hot layout index), 0 for context-free algorithms."""
-        if self.algo == "oracle":
+        if self.algo == "oracle" and self.oracle_context == "id":
             return self.n_train_layouts
         return (self.h_dim or self.d) if self.algo in BELIEF_ALGOS else 0
 
@@ -317,8 +324,18 @@ class Config:
             # although it doubled how much Q varies with h on 4 layouts (0.21 vs 0.11 of |Q|).
         if algo == "random":  # nothing to train: one no-op chunk
             base.update(steps=base.get("chunk_steps", 1_000))
+        if algo in BELIEF_ALGOS and "steps" in overrides and "enc_steps" not in overrides:
+            # a shorter (longer) belief run keeps the preset's share of encoder steps,
+            # rounded down to whole chunks (at least one)
+            chunk = overrides.get("chunk_steps", base.get("chunk_steps", Config.chunk_steps))
+            share = base.get("enc_steps", Config.enc_steps) / base.get("steps", Config.steps)
+            base["enc_steps"] = max(chunk, int(overrides["steps"] * share) // chunk * chunk)
         base.update(overrides)
         return Config(**base)
+
+    def replace(self, **changes) -> "Config":
+        """dataclasses.replace(self, **changes): a new, validated Config."""
+        return dataclasses.replace(self, **changes)
 
     def with_traced(self, values: dict) -> "Config":
         """A copy with the scalar fields in `values` set to (traced) arrays, without

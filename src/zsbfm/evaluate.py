@@ -187,9 +187,9 @@ def evaluate(run, contexts=None, goals=None, key=None, split: str = "test", prot
     k_split = k_train if split == "train" else k_test
     reward_obs = None
     if metric_of(env) == "return":  # z from the run's (cached) dataset; goals unused
-        from zsbfm.data.expert import load_or_collect_dataset
+        from zsbfm.data.sources import shared_dataset
 
-        ds = load_or_collect_dataset(cfg, env)
+        ds = shared_dataset(cfg, env)
         reward_obs = jax.vmap(lambda k: reward_states(k, ds))(k_states)
     elif protocol is None:
         goals = default_goals(env, contexts) if goals is None else jnp.asarray(goals, jnp.float32)

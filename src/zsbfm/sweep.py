@@ -13,7 +13,9 @@ Config before anything compiles, with the same one-line errors as `--set`.
 A sweep writes runs/<name>/: sweep.json (the grid, and per point its official score and
 every protocol's score per seed, and its learning curve if cfg.eval_every > 0), sweep.md
 (the table), sweep.png (bars per point) and curves.png (learning curves, when logged);
-each group trains in runs/<name>/<group>/, checkpointed and resumable like a run.
+each group trains in runs/<name>/g<i>/, checkpointed and resumable like a run, and each
+point is saved as a plain run in runs/<name>/points/<j>/ (zsbfm.load, zsbfm.evaluate and
+the diagnostics in experiments/fb_diagnostics work on it).
 """
 
 from __future__ import annotations
@@ -24,9 +26,11 @@ import json
 import os
 from typing import Any
 
+import jax
 import numpy as np
 
 from zsbfm.config import SWEEPABLE, Config
+from zsbfm.run import Run
 
 
 def parse_grid(cfg: Config, items: list[str] | tuple[str, ...]) -> dict[str, list]:
@@ -122,9 +126,18 @@ def sweep(cfg: Config, grid: dict[str, list], resume: bool = True, progress: boo
         label = f"sweep {cfg.run_name} group {gi + 1}/{len(plans)} ({n} points x {S} seeds)"
         loop = run_loop(trainer, run_dir, keys, hp, resume, progress, label=label)
         res = final_results(trainer, loop)
+        params = jax.device_get(trainer.agent.eval_params(loop.carry.agent_state))
         for pi, point in enumerate(scalar_points):
             rows = slice(pi * S, (pi + 1) * S)
             settings = {**group, **point}
+            # each point is also saved as a plain run: zsbfm.load / zsbfm.evaluate work on it
+            point_cfg = dataclasses.replace(cfg_g, **point, name=f"{cfg.run_name}/points/{len(points)}")
+            point_results = {k: (v[rows] if k in ("train", "test") else v) for k, v in res.items()}
+            point_results["detail"] = {sp: {k: v[rows] for k, v in d.items()} for sp, d in res["detail"].items()}
+            point_results["protocols"] = {p: {sp: v[rows] for sp, v in d.items()} for p, d in res["protocols"].items()}
+            point_metrics = [{k: (v[rows] if isinstance(v, list) else v) for k, v in m.items()} for m in loop.metrics]
+            Run(cfg=point_cfg, params=jax.tree_util.tree_map(lambda x: x[rows], params),
+                results=point_results, metrics=point_metrics).save(os.path.join(root, "points", str(len(points))))
             curve = [{k: (v[rows] if isinstance(v, list) and k.startswith("eval/") else v)
                       for k, v in m.items() if k in ("step", "flops", "wall_s") or k.startswith("eval/")}
                      for m in loop.metrics if any(k.startswith("eval/") for k in m)]

@@ -6,9 +6,9 @@ updates -> evaluate), so `jax.jit(jax.vmap(trainer.train))(keys)` sweeps seeds i
 program. `train(cfg)` is the host driver: it runs the same pieces for all seeds with
 `jax.vmap`, one compiled chunk at a time, and between chunks (never inside one) shows
 progress, logs metrics and writes an orbax checkpoint, so a killed run resumes from its
-last chunk and ends exactly where an uninterrupted run would. AntWind's host driver reads
-one dataset for all seeds from the on-disk cache (zsbfm.data.expert) instead of recording
-per seed: MJX rollouts are the costly part there.
+last chunk and ends exactly where an uninterrupted run would. The data comes from
+zsbfm.data.sources: collected per seed on device, or one dataset shared by every seed
+(a saved .npz, Config.dataset; AntWind's cached expert data).
 
 Devices (README "Devices"): the host driver places everything on a 2-D mesh
 ("seeds", "data") of all devices -- every process's in a multi-process run
@@ -38,6 +38,7 @@ from zsbfm.agents import make_agent
 from zsbfm.config import Config
 from zsbfm.data.collect import collect
 from zsbfm.data.samplers import DATA_AXIS
+from zsbfm.data.sources import shared_dataset
 from zsbfm.envs import make_env_for
 from zsbfm.evaluate import (default_goals, evaluate_params, evaluate_protocol, metric_of, protocol_score,
                             protocols_of, reward_states, split_results)
@@ -64,7 +65,8 @@ class Trainer:
     env: Any
     agent: Any
     init: Callable           # key -> TrainCarry
-    collect_data: Callable   # TrainCarry -> Dataset
+    collect_data: Callable   # TrainCarry -> Dataset (the shared dataset, or collected from the carry's data key)
+    shared: Any              # the Dataset every seed shares (zsbfm.data.sources), or None
     run_chunk: Callable      # (TrainCarry, Dataset, chunk index, hp) -> (TrainCarry, chunk-mean metrics)
     evaluate: Callable       # (TrainCarry, Dataset, eval key, hp) -> {"train": scores [n_ctx, n_goals], "test": ...}
     evaluate_protocols: Callable  # (TrainCarry, Dataset, eval key, hp) -> {"<split>/<protocol>": score}
@@ -82,9 +84,10 @@ def eval_key(seed_key: jax.Array) -> jax.Array:
     return jax.random.fold_in(seed_key, 1)
 
 
-def make_train(cfg: Config) -> Trainer:
+def make_train(cfg: Config, progress: bool = False) -> Trainer:
     env = make_env_for(cfg)  # antwind: with its behaviour expert (trained once, then cached)
     agent = make_agent(cfg, env)
+    shared = shared_dataset(cfg, env, progress)
     train_ctx, test_ctx = env.contexts("train"), env.contexts("test")
     train_goals, test_goals = default_goals(env, train_ctx), default_goals(env, test_ctx)
     protocols = protocols_of(env) if cfg.eval_protocols == "all" else protocols_of(env)[:1]
@@ -98,6 +101,8 @@ def make_train(cfg: Config) -> Trainer:
                           chunk=jnp.zeros((), jnp.int32))
 
     def collect_data(carry):
+        if shared is not None:
+            return jax.tree_util.tree_map(jnp.asarray, shared)
         return collect(env, carry.data_key, train_ctx, cfg.episodes_per_layout)
 
     def run_chunk(carry, dataset, chunk, hp=None):
@@ -149,7 +154,7 @@ def make_train(cfg: Config) -> Trainer:
                                       jnp.arange(cfg.num_chunks, dtype=jnp.int32))
         return carry, metrics, evaluate(carry, dataset, eval_key(key))
 
-    return Trainer(cfg, env, agent, init, collect_data, run_chunk, evaluate, evaluate_protocols,
+    return Trainer(cfg, env, agent, init, collect_data, shared, run_chunk, evaluate, evaluate_protocols,
                    train, agent_for)
 
 
@@ -336,14 +341,9 @@ def run_loop(trainer: Trainer, run_dir: str, keys, hp: dict, resume: bool, progr
     metrics = _read_metrics(run_dir, start)
     elapsed0 = metrics[-1].get("wall_s", 0.0) if metrics else 0.0
 
-    if cfg.env == "antwind":
-        # One dataset for every seed, read from the on-disk cache (`make data ENV=antwind`)
-        # or recorded once and cached: MJX rollouts are too costly to redo per seed here.
-        from zsbfm.data.expert import load_or_collect_dataset
-
-        ds = load_or_collect_dataset(cfg, trainer.env, progress and primary)
+    if trainer.shared is not None:  # one dataset for every row (zsbfm.data.sources)
         dataset = jax.tree_util.tree_map(
-            lambda x: global_array(np.broadcast_to(np.asarray(x), (rows,) + x.shape), shard), ds)
+            lambda x: global_array(np.broadcast_to(np.asarray(x), (rows,) + x.shape), shard), trainer.shared)
     else:  # every seed's data is collected on the device that trains that seed
         dataset = jax.jit(jax.vmap(trainer.collect_data), out_shardings=shard)(carry)
     chunk_fn = chunk_function(trainer, shard)
@@ -403,7 +403,7 @@ def train(cfg: Config, resume: bool = True, progress: bool = True,
     """
     run_dir = prepare_run_dir(cfg, resume)
     primary = jax.process_index() == 0
-    trainer = make_train(cfg)
+    trainer = make_train(cfg, progress and primary)
     loop = run_loop(trainer, run_dir, seed_keys(cfg), {}, resume, progress, callback)
     old = _read_results(run_dir) if loop.start == cfg.num_chunks else None
     results = final_results(trainer, loop)

@@ -136,6 +136,7 @@ class AntWind:
     n_actions = 0
     action_dim = 8
     metric = "return"
+    shares_data = True  # its expert episodes are recorded once and shared by every seed (zsbfm.data.sources)
     # bounds for input normalisation only (not enforced): z, quaternion, 8 joints, 14 velocities
     obs_low = (0.0,) + (-1.0,) * 4 + (-1.5,) * 8 + (-10.0,) * 14
     obs_high = (1.5,) + (1.0,) * 4 + (1.5,) * 8 + (10.0,) * 14

@@ -208,6 +208,11 @@ class GridWorld:
         cell = jnp.round(obs).astype(jnp.int32)
         return cell[..., 1] * self.size + cell[..., 0]
 
+    def context_features(self, ctx: GridContext) -> Array:
+        """The layout as a vector: its interior wall map, float32[(size - 2)^2] (the oracle's
+        "walls" context; the border is the same in every layout)."""
+        return ctx.walls[1:-1, 1:-1].reshape(-1).astype(jnp.float32)
+
     # -- contexts -----------------------------------------------------------------------
     def contexts(self, split: str) -> GridContext:
         """Stacked fixed layouts of a split: walls bool[n, H, W]."""
