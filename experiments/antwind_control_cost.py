@@ -20,7 +20,8 @@ import numpy as np
 
 from zsbfm.agents import make_agent
 from zsbfm.data.expert import load_or_collect_dataset
-from zsbfm.envs import index_contexts, make_env_for
+from zsbfm.data.sources import make_env_for
+from zsbfm.envs import index_contexts
 from zsbfm.envs.antwind import CTRL_COST
 from zsbfm.evaluate import context_episode, reward_states
 from zsbfm.run import load

@@ -22,7 +22,7 @@ import numpy as np
 
 from zsbfm.config import Config
 from zsbfm.data.collect import rollout
-from zsbfm.envs import make_env_for
+from zsbfm.data.sources import make_env_for
 
 
 def main():

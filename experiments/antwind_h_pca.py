@@ -24,7 +24,7 @@ import numpy as np
 
 from zsbfm.agents import make_agent
 from zsbfm.data.collect import collect
-from zsbfm.envs import make_env_for
+from zsbfm.data.sources import make_env_for
 from zsbfm.envs.antwind import wind_context
 from zsbfm.run import load
 

@@ -27,7 +27,8 @@ import numpy as np
 from zsbfm.agents import make_agent
 from zsbfm.data.collect import rollout
 from zsbfm.data.expert import load_or_collect_dataset
-from zsbfm.envs import index_contexts, make_env_for
+from zsbfm.data.sources import make_env_for
+from zsbfm.envs import index_contexts
 from zsbfm.envs.antwind import CTRL_COST, FRAME_SKIP, TORSO, healthy_bonus, mj_model, observe
 from zsbfm.evaluate import context_episode, reward_states
 from zsbfm.run import load

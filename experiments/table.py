@@ -109,25 +109,42 @@ def run_table(env: str, algos, seeds: int, runs_dir: str, overrides, size: str =
         cfg = sweep_config(env, algo, size, seeds, runs_dir, overrides)
         res = results_of(cfg, f"[{i + 1}/{len(algos)}] {NAMES[algo]}")
         wt = res["wall_time_s"]
-        rows[algo] = {"train": res["train"], "test": res["test"], "wall_time_s": wt["train"] + wt["eval"],
+        rows[algo] = {"train": res["train"], "test": res["test"], "protocols": res.get("protocols", {}),
+                      "wall_time_s": wt["train"] + wt["eval"],
                       "resumed_from_chunk": res.get("resumed_from_chunk", 0),
                       "run": os.path.join(runs_dir, cfg.run_name), "steps": cfg.steps}
     return rows
 
 
 def markdown(env: str, rows: dict, seeds: int, size: str, metric: str) -> str:
-    """The table; metric: "success" or "return" (evaluate.metric_of, the env's own)."""
+    """The table; metric: "success" or "return" (evaluate.metric_of, the env's own). The
+    official (paper-protocol) score first, then every other protocol the runs report
+    (train / test means over seeds)."""
     paper = PAPER.get(env, {})
     fmt = ".0f" if metric == "return" else ".2f"
-    lines = [f"| {env} ({seeds} seeds, {size} preset) | train {metric} | test {metric} | paper train / test "
-             f"| wall time (train + eval) |", "|---|---|---|---|---|"]
+    extra = [p for p in ("dense", "random_start") if any(p in r.get("protocols", {}) for r in rows.values())]
+    head = f"| {env} ({seeds} seeds, {size} preset) | train {metric} | test {metric} | paper train / test "
+    head += "".join(f"| {p} train / test " for p in extra) + "| wall time (train + eval) |"
+    lines = [head, "|---" * (5 + len(extra)) + "|"]
     for algo, row in rows.items():
         tr, te = np.asarray(row["train"]), np.asarray(row["test"])
         pp = paper.get(algo)
         note = " (resumed)" if row["resumed_from_chunk"] else ""
-        test = "n/a (h = 0)" if algo == "oracle" else f"{te.mean():{fmt}} +- {te.std():{fmt}}"
+        oracle_id = algo == "oracle" and row.get("oracle_context", "id") == "id"
+        test = "n/a (h = 0)" if oracle_id else f"{te.mean():{fmt}} +- {te.std():{fmt}}"
+        cells = ""
+        for p in extra:
+            d = row.get("protocols", {}).get(p, {})
+            cells += f"| {np.mean(d['train']):.2f} / {np.mean(d['test']):.2f} " if d else "| - "
         lines.append(f"| {NAMES[algo]} | {tr.mean():{fmt}} +- {tr.std():{fmt}} | {test} | "
-                     f"{f'{pp[0]:{fmt}} / {pp[1]:{fmt}}' if pp else 'n/a'} | {row['wall_time_s']:.0f} s{note} |")
+                     f"{f'{pp[0]:{fmt}} / {pp[1]:{fmt}}' if pp else 'n/a'} {cells}| {row['wall_time_s']:.0f} s{note} |")
+    if extra:
+        lines.append("\nProtocols: train / test success = the paper's (start (1, 1), one goal in each other room); "
+                     "dense = every free cell a goal from the start; random_start = the authors' earlier variant "
+                     "(5 random start cells per goal, goals (2, 2), (8, 8), (2, 8), (8, 2) on fourrooms).")
+    if any(r["resumed_from_chunk"] for r in rows.values()):
+        lines.append("(resumed): the run was killed and resumed from its checkpoint; it ends as an "
+                     "uninterrupted run would, its wall time counts the last part only.")
     total = sum(r["wall_time_s"] for r in rows.values())
     lines.append(f"\nTotal wall time {total / 60:.1f} min.")
     if "oracle" in rows:

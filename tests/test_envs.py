@@ -164,7 +164,7 @@ def test_random_reset_starts_on_free_cells():
 def test_bad_env_arguments_raise():
     with pytest.raises(ValueError, match="unknown env 'humanoid'"):
         zsbfm.make_env("humanoid")
-    with pytest.raises(ValueError, match="15 fixed train winds, got n_train=20"):
+    with pytest.raises(ValueError, match="15 fixed train contexts, got n_train=20"):
         zsbfm.make_env("antwind", n_train=20)
     with pytest.raises(ValueError, match="n_train must be <= 29"):
         zsbfm.make_env("doors", n_train=40)

@@ -27,7 +27,7 @@ from zsbfm.agents import make_agent
 from zsbfm.config import Config
 from zsbfm.data.collect import collect
 from zsbfm.data.expert import load_or_collect_dataset
-from zsbfm.envs import make_env_for
+from zsbfm.data.sources import make_env_for
 from zsbfm.data.samplers import sample_windows
 
 

@@ -12,7 +12,7 @@ import numpy as np
 
 import zsbfm
 from zsbfm.data.collect import collect
-from zsbfm.envs import make_env_for
+from zsbfm.data.sources import make_env_for
 
 cfg = zsbfm.Config.preset("pointmass", "bfb")
 env = make_env_for(cfg, progress=False)

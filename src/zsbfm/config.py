@@ -13,9 +13,11 @@ import dataclasses
 import json
 from typing import Any
 
-ENVS = ("doors", "fourrooms", "pointmass", "antwind")
-CONTINUOUS_ENVS = ("pointmass", "antwind")
-ALGOS = ("fb", "bfb", "rfb", "oracle", "hilp", "lap", "random")
+import zsbfm.envs  # noqa: F401  (registers the built-in environments)
+from zsbfm.envs.registry import env_names, env_spec
+
+ENVS = env_names()                     # the environments registered at import (zsbfm.envs.registry)
+ALGOS = ("fb", "bfb", "rfb", "oracle", "hilp", "lap", "random")  # the built-in agents (zsbfm.agents.AGENTS)
 BELIEF_ALGOS = ("bfb", "rfb")          # infer h with the context encoder
 ENCODER_MODES = ("staged", "joint")
 SIZES = ("cpu", "paper")
@@ -25,14 +27,12 @@ SPLUS = ("batch", "states", "exact")    # the s+ estimator of the FB loss (agent
 # Float settings a vmapped sweep can vary inside one compiled program (zsbfm.sweep): each is
 # only ever used as a number in the traced code (no Python branch reads it). Any other field
 # changes shapes or control flow, so each of its values compiles a program of its own.
-SWEEPABLE = ("lr", "lr_B", "tau", "gamma", "temperature", "ortho_coef", "z_mix", "clip_norm",
+SWEEPABLE = ("lr", "lr_B", "q_loss_coef", "tau", "gamma", "temperature", "ortho_coef", "z_mix", "clip_norm",
              "kappa", "enc_lr", "enc_beta", "feat_tau", "feat_gamma", "hilp_expectile",
              "hilp_p_traj_goal", "target_noise", "target_noise_clip")
 H_CONDS = ("concat", "film", "outer")  # how the context h enters F (nets/fb.py)
 F_ARCHS = ("reference", "normed_trunk")  # F's layer layout (nets/fb.py)
-EPISODE_LEN = {"doors": 100, "fourrooms": 100, "pointmass": 250, "antwind": 256}
 DATA_POLICIES = ("expert", "random")
-ANTWIND_TRAIN_WINDS = 15               # 20 directions; the first three quadrants train
 
 
 @dataclasses.dataclass(frozen=True)
@@ -88,6 +88,7 @@ class Config:
     splus_batch: int = 1024                   # states per update for splus="states"
     clip_norm: float = 0.0                    # global gradient-norm clip of F/B/actor (0: none)
     lr_B: float = 0.0                         # B's learning rate (0: lr)
+    q_loss_coef: float = 0.0                  # weight of the TD loss on Q = F^T z itself (agents/fb.py q_loss; 0: off)
 
     # --- continuous actions (pointmass): TD3-style actor ------------------------------------
     actor_hidden: tuple[int, ...] = (256, 256)  # actor MLP hidden layers
@@ -141,10 +142,13 @@ class Config:
         def bad(field, value, allowed):
             raise ValueError(f"Config.{field}={value!r} is invalid: expected {allowed}")
 
-        if self.env not in ENVS:
-            bad("env", self.env, f"one of {ENVS}")
-        if self.algo not in ALGOS:
-            bad("algo", self.algo, f"one of {ALGOS}")
+        if self.env not in env_names():
+            bad("env", self.env, f"one of {env_names()}")
+        spec = env_spec(self.env)
+        from zsbfm.agents import AGENTS  # the agent registry (agents import this module)
+
+        if self.algo not in AGENTS:
+            bad("algo", self.algo, f"one of {tuple(AGENTS)}")
         if self.size not in SIZES:
             bad("size", self.size, f"one of {SIZES}")
         if self.twin_target not in ("mean", "min"):
@@ -165,9 +169,12 @@ class Config:
             bad("expert_steps", self.expert_steps, "a positive integer")
         if self.expert_noise < 0:
             bad("expert_noise", self.expert_noise, "expert_noise >= 0")
-        if self.env == "antwind" and self.n_train_layouts != ANTWIND_TRAIN_WINDS:
+        if spec.fixed_train and self.n_train_layouts != spec.n_train:
             bad("n_train_layouts", self.n_train_layouts,
-                f"{ANTWIND_TRAIN_WINDS} for antwind (the fixed train winds: 20 directions, first three quadrants)")
+                f"{spec.n_train} for {self.env} (its train contexts are fixed)")
+        if spec.max_train is not None and self.n_train_layouts > spec.max_train:
+            bad("n_train_layouts", self.n_train_layouts,
+                f"at most {spec.max_train} for {self.env} (the rest of its contexts are held out for test)")
         if not isinstance(self.eval_every, int) or isinstance(self.eval_every, bool) or self.eval_every < 0:
             bad("eval_every", self.eval_every, "a non-negative integer (chunks; 0: evaluate only at the end)")
         if self.eval_protocols not in ("all", "official"):
@@ -176,11 +183,13 @@ class Config:
             bad("oracle_context", self.oracle_context, "'id' or 'walls'")
         if self.splus not in SPLUS:
             bad("splus", self.splus, f"one of {SPLUS}")
-        if self.splus == "exact" and self.env in CONTINUOUS_ENVS:
+        if self.splus == "exact" and not spec.finite_states:
             bad("splus", self.splus, f"'batch' or 'states' for the continuous env {self.env!r} "
                 "('exact' sums over a finite state set)")
         if not self.clip_norm >= 0:
             bad("clip_norm", self.clip_norm, "clip_norm >= 0 (0: no clipping)")
+        if not self.q_loss_coef >= 0:
+            bad("q_loss_coef", self.q_loss_coef, "q_loss_coef >= 0 (0: off)")
         if not self.lr_B >= 0:
             bad("lr_B", self.lr_B, "lr_B >= 0 (0: the same as lr)")
         if self.lr_schedule not in LR_SCHEDULES:
@@ -252,16 +261,16 @@ class Config:
             bad("temperature", self.temperature, "temperature > 0")
         if self.batch_size < 2:
             bad("batch_size", self.batch_size, "batch_size >= 2 (the FB loss pairs batch items)")
-        if self.env in CONTINUOUS_ENVS and self.obs_encoding != "raw":
+        if not spec.discrete and self.obs_encoding != "raw":
             bad("obs_encoding", self.obs_encoding, f"'raw' for the continuous env {self.env!r} (one-hot/cell need a grid)")
         if not self.actor_bc >= 0:
             bad("actor_bc", self.actor_bc, "actor_bc >= 0 (0 disables the behaviour-cloning term)")
-        if self.actor_bc > 0 and self.env not in CONTINUOUS_ENVS:
+        if self.actor_bc > 0 and spec.discrete:
             bad("actor_bc", self.actor_bc, f"0 for the discrete env {self.env!r} (no actor: pi = argmax Q)")
         if self.target_noise < 0 or self.target_noise_clip < 0:
             bad("target_noise", (self.target_noise, self.target_noise_clip), "non-negative noise and clip")
-        if self.episode_len != EPISODE_LEN[self.env]:
-            bad("episode_len", self.episode_len, f"{EPISODE_LEN[self.env]} for env {self.env!r}")
+        if self.episode_len != spec.episode_len:
+            bad("episode_len", self.episode_len, f"{spec.episode_len} for env {self.env!r}")
         if self.context_len > self.episode_len:
             bad("context_len", self.context_len,
                 f"at most the episode length ({self.episode_len}): a context is one episode's window")
@@ -271,9 +280,6 @@ class Config:
             bad("data_parallel", self.data_parallel,
                 f"a divisor of batch_size={self.batch_size} (each device of the 'data' mesh axis "
                 "takes batch_size / data_parallel transitions)")
-        if self.env == "doors" and self.n_train_layouts > 29:
-            bad("n_train_layouts", self.n_train_layouts,
-                "at most 29 for doors (49 layouts, 20 held out for test)")
 
     # -- derived --------------------------------------------------------------------------
     @property
@@ -310,10 +316,11 @@ class Config:
         if size not in SIZES:
             raise ValueError(f"Config.size={size!r} is invalid: expected one of {SIZES}")
         base: dict[str, Any] = dict(env=env, algo=algo, size=size)
-        base.update(_PRESETS.get((env, size), {}))
+        spec = env_spec(env)  # the env module's own preset overrides (zsbfm.envs.registry)
+        base.update(spec.presets.get(size, {}))
         if algo in BELIEF_ALGOS:  # the encoder phase comes on top of the FB steps
             base.update(_BELIEF_PRESETS[size])
-            base.update(_BELIEF_ENV_PRESETS.get((env, size), {}))
+            base.update(spec.belief_presets.get(size, {}))
         if algo in BELIEF_ALGOS + ("oracle",) and size == "cpu":
             # h also enters F's (s, a) preprocessor: with h only beside z, F barely used even
             # the true layout id (oracle, 4 layouts: 0.17 train success; with h_in_sa: 0.42).
@@ -389,11 +396,6 @@ class Config:
         return json.dumps(self.to_dict(), indent=2)
 
 
-_PAPER_DISCRETE = dict(d=100, f_pre_hidden=(1024,), f_pre_out=512, f_hidden=(1024, 1024),
-                       b_hidden=(256, 256, 256), lr=1e-4, batch_size=1024, gamma=0.99,
-                       tau=0.05, steps=1_000_000, chunk_steps=10_000,
-                       feat_hidden=(512, 512))
-
 # Fields whose default changed: a saved config without the field ran with the old value.
 LEGACY_DEFAULTS: dict[str, Any] = {"f_arch": "normed_trunk"}
 
@@ -401,47 +403,4 @@ _BELIEF_PRESETS: dict[str, dict[str, Any]] = {
     "cpu": dict(enc_steps=4_000, steps=14_000),
     "paper": dict(enc_steps=10_000, steps=1_010_000, enc_embed=128, enc_mlp=256,
                   pred_hidden=(256, 256, 256), enc_lr=1e-4),
-}
-
-# Per-environment encoder settings of the belief algos (on top of _BELIEF_PRESETS).
-_BELIEF_ENV_PRESETS: dict[tuple[str, str], dict[str, Any]] = {
-    # A same-wind InfoNCE on h (agents/belief.py, not the paper's): the wind barely changes
-    # one step under ground contact, so the predictor alone never used h (wind probe error
-    # 28 deg -> 10 deg; h PCA coherence 0.32 -> 0.78; Rotation-FB test return 201 -> 262; README).
-    ("antwind", "cpu"): dict(enc_contrast=1.0),
-}
-
-_PRESETS: dict[tuple[str, str], dict[str, Any]] = {
-    ("fourrooms", "cpu"): dict(n_train_layouts=20, episodes_per_layout=500),
-    ("fourrooms", "paper"): dict(n_train_layouts=20, episodes_per_layout=500, **_PAPER_DISCRETE),
-    ("doors", "cpu"): dict(n_train_layouts=20, episodes_per_layout=500),
-    ("doors", "paper"): dict(n_train_layouts=20, episodes_per_layout=500, **_PAPER_DISCRETE),
-    # f_arch="normed_trunk" (F before f_arch existed) where the README's numbers were measured
-    # with it and not yet rerun with the reference layout
-    # 30 train mazes x 133 episodes x 250 steps = 1e6 transitions; contexts are 100-step windows
-    ("pointmass", "cpu"): dict(n_train_layouts=30, episodes_per_layout=133, episode_len=250,
-                               eval_episode_len=250, context_len=100, obs_encoding="raw", gamma=0.98,
-                               f_arch="normed_trunk"),
-    # 15 train winds x 100 expert episodes x 256 steps = 384k transitions; contexts are
-    # 100-step windows; returns over 256-step episodes
-    ("antwind", "cpu"): dict(n_train_layouts=15, episodes_per_layout=100, episode_len=256,
-                             eval_episode_len=256, context_len=100, obs_encoding="raw",
-                             gamma=0.98, steps=10_000,
-                             # TD3+BC actor (agents/fb.py): the pure -Q actor pushed saturated,
-                             # costly actions off the expert data (FB, 3 seeds: return -124 / -131
-                             # train / test with actor_bc=0, 224 / 197 with 0.4; README)
-                             actor_bc=0.4, f_arch="normed_trunk"),
-    ("antwind", "paper"): dict(n_train_layouts=15, episodes_per_layout=1000, episode_len=256,
-                               eval_episode_len=256, context_len=100, obs_encoding="raw",
-                               expert_steps=3_000_000, d=150, f_pre_hidden=(1024,), f_pre_out=512,
-                               f_hidden=(1024, 1024), b_hidden=(256, 256, 256),
-                               actor_hidden=(1024, 1024), lr=1e-4, batch_size=1024, gamma=0.99,
-                               tau=0.05, steps=1_000_000, chunk_steps=10_000, kappa=100.0,
-                               feat_hidden=(512, 512)),
-    ("pointmass", "paper"): dict(n_train_layouts=30, episodes_per_layout=133, episode_len=250,
-                                 eval_episode_len=250, context_len=100, obs_encoding="raw",
-                                 d=150, f_pre_hidden=(1024,), f_pre_out=512, f_hidden=(1024, 1024),
-                                 b_hidden=(256, 256, 256), actor_hidden=(1024, 1024), lr=1e-4,
-                                 batch_size=1024, gamma=0.99, tau=0.05, steps=1_000_000,
-                                 chunk_steps=10_000, kappa=100.0, feat_hidden=(512, 512)),
 }

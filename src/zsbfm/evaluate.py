@@ -168,7 +168,7 @@ def evaluate(run, contexts=None, goals=None, key=None, split: str = "test", prot
     the valid tasks, `protocol_score`).
     """
     from zsbfm.agents import make_agent
-    from zsbfm.envs import make_env_for
+    from zsbfm.data.sources import make_env_for
     from zsbfm.train import eval_key, seed_keys
 
     cfg = run.cfg

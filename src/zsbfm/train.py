@@ -39,7 +39,7 @@ from zsbfm.config import Config
 from zsbfm.data.collect import collect
 from zsbfm.data.samplers import DATA_AXIS
 from zsbfm.data.sources import shared_dataset
-from zsbfm.envs import make_env_for
+from zsbfm.data.sources import make_env_for
 from zsbfm.evaluate import (default_goals, evaluate_params, evaluate_protocol, metric_of, protocol_score,
                             protocols_of, reward_states, split_results)
 from zsbfm.run import Run

@@ -11,6 +11,11 @@ AGENTS = {"fb": FBAgent, "bfb": BeliefFBAgent, "rfb": RotationFBAgent, "oracle":
           "hilp": HILPAgent, "lap": LaplacianAgent, "random": RandomAgent}
 
 
+def register_agent(name: str, cls) -> None:
+    """Make `cls(cfg, env)` the agent of Config.algo == name (docs/extending.md)."""
+    AGENTS[name] = cls
+
+
 def make_agent(cfg, env) -> Agent:
     """The agent for cfg.algo on `env`."""
     if cfg.algo not in AGENTS:
@@ -20,4 +25,4 @@ def make_agent(cfg, env) -> Agent:
 
 __all__ = ["Agent", "Context", "Task", "FBAgent", "OracleFBAgent", "HILPAgent", "LaplacianAgent",
            "SFAgent", "RandomAgent", "BeliefFBAgent", "RotationFBAgent", "BeliefState", "FBParams", "FBState", "fb_loss",
-           "ortho_loss", "make_agent", "AGENTS"]
+           "ortho_loss", "make_agent", "register_agent", "AGENTS"]

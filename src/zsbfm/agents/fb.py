@@ -107,6 +107,28 @@ def ortho_loss_weighted(B: Array, rho: Array) -> Array:
     return jnp.sum(C**2) - 2.0 * jnp.trace(C)
 
 
+def q_loss(F: Array, target_F: Array, B_next: Array, B_plus: Array, z: Array, gamma,
+           rho: Array | None = None) -> Array:
+    """The TD loss of the scalar Q = F^T z itself (controllable_agent's optional "q_loss"),
+    summed over the heads:
+
+        sum_k mean_i (F_k(s_i, a_i, w_i)^T z_i - [r_i + gamma * min_k' Fbar_k'(s'_i, pi, w_i)^T z_i])^2
+
+    with the implicit reward of z_i, r_i = B(s'_i)^T C^-1 z_i, C = E_rho[B B^T] [d, d] (the
+    reward whose Q is F^T z when M = F^T B rho): from the s+ states B_plus [m, d], weighted
+    by rho [m] or uniformly. The target (reward and next Q) is stop-gradient. It weighs the
+    one direction of F the policy reads (z) above the rest of the measure.
+    F, target_F: [K, n, d]; B_next: [n, d]; z: [n, d]."""
+    w = jnp.full(B_plus.shape[:1], 1.0 / B_plus.shape[0]) if rho is None else rho
+    C = jnp.einsum("m,md,me->de", w, B_plus, B_plus)
+    C = C + 1e-4 * jnp.trace(C) / C.shape[0] * jnp.eye(C.shape[0])  # never singular (m < d)
+    reward = jnp.einsum("nd,nd->n", B_next, jnp.linalg.solve(C, z.T).T)
+    next_q = jnp.min(jnp.einsum("knd,nd->kn", target_F, z), 0)
+    target = jax.lax.stop_gradient(reward + gamma * next_q)
+    q = jnp.einsum("knd,nd->kn", F, z)
+    return jnp.sum(jnp.mean((q - target[None]) ** 2, axis=1))
+
+
 def clip_by_global_norm(grads, max_norm) -> Any:
     """grads scaled by min(1, max_norm / |grads|) (global L2 norm); max_norm = 0: unchanged.
     Written with jnp.where rather than a Python branch so max_norm can be a traced value
@@ -373,7 +395,12 @@ class FBAgent:
         l_actor, m_actor = self.actor_loss(params, batch, task)
         metrics = dict(metrics, **m_actor, fb_loss=l_fb, ortho_loss=l_ortho,
                        q_mean=jnp.mean(jnp.einsum("knd,nd->kn", F, task.z)))
-        return l_fb + self.cfg.ortho_coef * l_ortho + l_actor, metrics
+        total = l_fb + self.cfg.ortho_coef * l_ortho + l_actor
+        if not (isinstance(self.cfg.q_loss_coef, float) and self.cfg.q_loss_coef == 0.0):  # traced in a sweep
+            l_q = q_loss(F, target_F, B_next, B_plus, task.z, self.cfg.gamma, aux.get("rho"))
+            metrics["q_loss"] = l_q
+            total = total + self.cfg.q_loss_coef * l_q
+        return total, metrics
 
     def actor_loss(self, params: FBParams, batch: Transitions, task: Task) -> tuple[Array, dict]:
         """Continuous actions, with q_i = min_k F_k(s_i, pi(s_i, w_i), w_i)^T z_i and F frozen

@@ -341,7 +341,12 @@ def antwind_env(cfg, progress: bool = True):
     (data_policy="expert", trained or read from the cache) or uniform actions ("random")."""
     from zsbfm.envs.antwind import AntWind
 
-    env = AntWind(episode_len=cfg.episode_len)
+    return with_expert(AntWind(episode_len=cfg.episode_len), cfg, progress)
+
+
+def with_expert(env, cfg, progress: bool = True):
+    """`env` with its behaviour policy attached: the noisy TD3 expert (data_policy="expert",
+    trained or read from the cache) or unchanged, uniform actions ("random")."""
     if cfg.data_policy == "random":
         return env
     settings = expert_settings(cfg)

@@ -20,6 +20,19 @@ import numpy as np
 
 from zsbfm.data.dataset import Dataset, load_dataset
 from zsbfm.envs.base import num_contexts
+from zsbfm.envs.registry import env_spec, make_env
+
+
+def make_env_for(cfg, progress: bool = True):
+    """The environment of a Config, ready to collect data: `make_env` with the config's
+    train contexts and episode length, with its trained behaviour expert attached when the
+    env's data comes from one (EnvSpec.expert_behaviour: AntWind; trained once, cached)."""
+    env = make_env(cfg.env, n_train=cfg.n_train_layouts, episode_len=cfg.episode_len)
+    if env_spec(cfg.env).expert_behaviour:
+        from zsbfm.data.expert import with_expert
+
+        env = with_expert(env, cfg, progress)
+    return env
 
 
 def check_dataset(ds: Dataset, env, cfg, path: str = "dataset") -> Dataset:

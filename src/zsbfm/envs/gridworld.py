@@ -22,6 +22,7 @@ import numpy as np
 from flax import struct
 
 from zsbfm.envs.base import EnvState
+from zsbfm.envs.registry import EnvSpec, register
 
 Array = jax.Array
 
@@ -292,3 +293,20 @@ class GridWorld:
 
     def random_action(self, key: Array) -> Array:
         return jax.random.randint(key, (), 0, self.n_actions)
+
+
+# --- Registration: each family's facts and preset overrides (Config.preset) ----------------
+
+PAPER_DISCRETE = dict(d=100, f_pre_hidden=(1024,), f_pre_out=512, f_hidden=(1024, 1024),
+                      b_hidden=(256, 256, 256), lr=1e-4, batch_size=1024, gamma=0.99,
+                      tau=0.05, steps=1_000_000, chunk_steps=10_000, feat_hidden=(512, 512))
+
+for _family in FAMILIES.values():
+    register(EnvSpec(
+        name=_family.name,
+        make=functools.partial(GridWorld, _family.name),
+        episode_len=100, discrete=True, n_train=20, finite_states=True,
+        max_train=None if _family.max_layouts is None else _family.max_layouts - N_TEST_LAYOUTS,
+        presets={"cpu": dict(n_train_layouts=20, episodes_per_layout=500),
+                 "paper": dict(n_train_layouts=20, episodes_per_layout=500, **PAPER_DISCRETE)},
+        description=f"{_family.size}x{_family.size} randomized gridworld"))

@@ -39,6 +39,7 @@ import numpy as np
 from flax import struct
 
 from zsbfm.envs.base import EnvState
+from zsbfm.envs.registry import EnvSpec, register
 
 Array = jax.Array
 
@@ -209,6 +210,10 @@ class PointMass:
         train, test = fixed_mazes(self.n_train)
         return MazeContext(walls=jnp.asarray(train if split == "train" else test))
 
+    def context_features(self, ctx: MazeContext) -> Array:
+        """The maze as a vector: its interior wall map (the oracle's "walls" context)."""
+        return ctx.walls[1:-1, 1:-1].reshape(-1).astype(jnp.float32)
+
     def sample_contexts(self, key: Array, n: int) -> MazeContext:
         """n mazes drawn from a fixed pool of generated mazes (jittable; never a test maze,
         may equal a train maze)."""
@@ -299,3 +304,18 @@ class PointMass:
         theta = angles[last]
         a = jnp.stack([jnp.cos(theta), jnp.sin(theta)], -1)
         return jnp.clip(a + NOISE * jax.random.normal(k_noise, (length, 2)), -1.0, 1.0)
+
+
+# 30 train mazes x 133 episodes x 250 steps = 1e6 transitions; contexts are 100-step windows.
+# f_arch="normed_trunk" (F before f_arch existed): the Pointmass tables were measured with it.
+register(EnvSpec(
+    name="pointmass", make=PointMass, episode_len=250, discrete=False, n_train=30,
+    presets={
+        "cpu": dict(n_train_layouts=30, episodes_per_layout=133, episode_len=250, eval_episode_len=250,
+                    context_len=100, obs_encoding="raw", gamma=0.98, f_arch="normed_trunk"),
+        "paper": dict(n_train_layouts=30, episodes_per_layout=133, episode_len=250, eval_episode_len=250,
+                      context_len=100, obs_encoding="raw", d=150, f_pre_hidden=(1024,), f_pre_out=512,
+                      f_hidden=(1024, 1024), b_hidden=(256, 256, 256), actor_hidden=(1024, 1024), lr=1e-4,
+                      batch_size=1024, gamma=0.99, tau=0.05, steps=1_000_000, chunk_steps=10_000,
+                      kappa=100.0, feat_hidden=(512, 512))},
+    description="continuous point mass in a randomized 8x8 maze"))

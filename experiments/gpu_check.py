@@ -1,0 +1,88 @@
+"""Paper-size Four-Rooms FB and Belief-FB for as many updates as fit in a time budget, with
+their learning curves and updates/s: the device check of a GPU machine.
+
+    bash experiments/gpu_check.sh              # GPU: paper sizes, 8 minutes in all
+    python experiments/gpu_check.py --budget 60 --tiny   # any machine: tiny sizes
+
+On a CPU (no GPU found) it runs the same path at tiny sizes unless --paper is given. Per
+algorithm it compiles one chunk, then trains chunk after chunk until its share of the
+budget is spent, evaluating every chunk (official and dense protocols, train and test
+layouts) with the program zsbfm.train uses (Trainer.evaluate_protocols, compiled once).
+Prints one line per chunk and a JSON summary; writes it to --out if given.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import time
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+import zsbfm
+from zsbfm.train import eval_key, make_train, seed_keys, update_flops
+
+TINY = dict(d=8, f_pre_hidden=(16,), f_pre_out=16, f_hidden=(16,), b_hidden=(16,), batch_size=32,
+            n_train_layouts=4, episodes_per_layout=20, enc_embed=16, enc_mlp=16, pred_hidden=(16,))
+
+
+def check(algo: str, budget: float, tiny: bool, chunk: int) -> dict:
+    over = dict(TINY) if tiny else {}
+    steps = chunk * 1000
+    enc = dict(enc_steps=chunk) if algo in ("bfb", "rfb") else {}
+    cfg = zsbfm.Config.preset("fourrooms", algo, "paper", num_seeds=1, chunk_steps=chunk, steps=steps,
+                              checkpoint=False, **enc, **over)
+    t0 = time.time()
+    tr = make_train(cfg)
+    keys = seed_keys(cfg)
+    carry = jax.jit(jax.vmap(tr.init))(keys)
+    ds = jax.jit(jax.vmap(tr.collect_data))(carry)
+    chunk_fn = jax.jit(jax.vmap(tr.run_chunk, in_axes=(0, 0, None, None)), donate_argnums=0)
+    eval_fn = jax.jit(jax.vmap(tr.evaluate_protocols, in_axes=(0, 0, 0, None)))
+    ekeys = jax.vmap(eval_key)(keys)
+    flops = update_flops(tr, carry, ds, {})
+    rows, i = [], 0
+    while True:
+        t = time.time()
+        carry, m = chunk_fn(carry, ds, jnp.int32(i), {})
+        jax.block_until_ready(m)
+        dt = time.time() - t
+        scores = jax.device_get(eval_fn(carry, ds, ekeys, None))
+        i += 1
+        row = {"updates": i * chunk, "chunk_s": round(dt, 2), "updates_per_s": round(chunk / dt, 1),
+               "gflop_per_update": float(f"{(flops(i * chunk) - flops(i * chunk - 1)) / 1e9:.3g}"),
+               **{k: round(float(np.mean(v)), 3) for k, v in scores.items() if k.split("/")[1] in ("paper", "dense")}}
+        rows.append(row)
+        print(f"{algo} {json.dumps(row)}", flush=True)
+        if time.time() - t0 > budget or i == cfg.num_chunks:
+            break
+    return {"algo": algo, "config": "paper" + (" (tiny)" if tiny else ""), "wall_s": round(time.time() - t0, 1),
+            "curve": rows}
+
+
+def main():
+    p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("--budget", type=float, default=480.0, help="seconds for all algorithms together")
+    p.add_argument("--algos", nargs="+", default=["fb", "bfb"])
+    p.add_argument("--tiny", action="store_true", help="tiny sizes (default on a CPU)")
+    p.add_argument("--paper", action="store_true", help="paper sizes even on a CPU")
+    p.add_argument("--chunk", type=int, default=0, help="updates per chunk (default 500 on a GPU, 10 tiny)")
+    p.add_argument("--out", default="")
+    a = p.parse_args()
+    backend = jax.default_backend()
+    tiny = a.tiny or (backend == "cpu" and not a.paper)
+    chunk = a.chunk or (10 if tiny else 500)
+    print(f"backend {backend}: {jax.devices()[0].device_kind}; {'tiny' if tiny else 'paper'} sizes; "
+          f"budget {a.budget:.0f} s; {chunk} updates per chunk", flush=True)
+    out = {"backend": backend, "device": jax.devices()[0].device_kind,
+           "results": [check(algo, a.budget / len(a.algos), tiny, chunk) for algo in a.algos]}
+    print(json.dumps(out))
+    if a.out:
+        with open(a.out, "w") as f:
+            json.dump(out, f, indent=1)
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,60 @@
+"""One registry of environments: each env module registers its own facts here.
+
+    register(EnvSpec(name="fourrooms", make=..., episode_len=100, discrete=True, ...))
+    env = make_env("fourrooms", n_train=10)   # every caller builds envs through this
+    spec = env_spec("fourrooms")               # the facts Config validates against
+
+An EnvSpec holds what the rest of the framework needs to know about an environment without
+building it: its episode length, action type, default / maximum number of train contexts,
+and its preset overrides per size (Config.preset layers them under the algorithm's).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from typing import Any, Callable
+
+
+@dataclasses.dataclass(frozen=True)
+class EnvSpec:
+    name: str
+    make: Callable[..., Any]          # make(n_train: int, episode_len: int) -> Env
+    episode_len: int                  # steps per episode (data, contexts)
+    discrete: bool                    # discrete actions (argmax policy) or continuous (actor)
+    n_train: int                      # default number of train contexts
+    max_train: int | None = None      # at most this many train contexts (None: no limit)
+    fixed_train: bool = False         # the train contexts are fixed: n_train must equal the default
+    finite_states: bool = False       # env.states() enumerates every observation (Config.splus="exact")
+    expert_behaviour: bool = False    # its data comes from a trained expert (zsbfm.data.expert; Config.data_policy)
+    presets: dict = dataclasses.field(default_factory=dict)         # size -> Config overrides
+    belief_presets: dict = dataclasses.field(default_factory=dict)  # size -> bfb / rfb overrides
+    description: str = ""
+
+
+_REGISTRY: dict[str, EnvSpec] = {}
+
+
+def register(spec: EnvSpec) -> EnvSpec:
+    """Add an environment (or replace one of the same name); returns the spec."""
+    _REGISTRY[spec.name] = spec
+    return spec
+
+
+def env_names() -> tuple[str, ...]:
+    return tuple(_REGISTRY)
+
+
+def env_spec(name: str) -> EnvSpec:
+    if name not in _REGISTRY:
+        raise ValueError(f"unknown env {name!r}; available: {', '.join(_REGISTRY)}")
+    return _REGISTRY[name]
+
+
+def make_env(name: str, n_train: int | None = None, episode_len: int | None = None):
+    """Build a registered environment: n_train train contexts (default: the env's own) and
+    episodes of episode_len steps (default: the env's own)."""
+    spec = env_spec(name)
+    n = spec.n_train if n_train is None else n_train
+    if spec.fixed_train and n != spec.n_train:
+        raise ValueError(f"{name} has {spec.n_train} fixed train contexts, got n_train={n}")
+    return spec.make(n_train=n, episode_len=spec.episode_len if episode_len is None else episode_len)

@@ -1,0 +1,22 @@
+"""experiments/gpu_check.sh runs its GPU path at tiny sizes on a CPU."""
+
+import json
+import os
+import subprocess
+import sys
+
+ROOT = os.path.join(os.path.dirname(__file__), "..")
+
+
+def test_gpu_check_runs_tiny_on_cpu(tmp_path):
+    out = tmp_path / "gpu_check.json"
+    env = dict(os.environ, JAX_PLATFORMS="cpu", BUDGET="1", GPU_CHECK_OUT=str(out), PY=sys.executable)
+    proc = subprocess.run(["bash", os.path.join(ROOT, "experiments", "gpu_check.sh")], env=env,
+                          capture_output=True, text=True, timeout=600)
+    assert proc.returncode == 0, proc.stderr[-2000:]
+    res = json.loads(out.read_text())
+    assert res["backend"] == "cpu" and [r["algo"] for r in res["results"]] == ["fb", "bfb"]
+    for r in res["results"]:
+        row = r["curve"][0]
+        assert r["config"] == "paper (tiny)" and row["updates"] == 10 and row["updates_per_s"] > 0
+        assert 0 <= row["train/dense"] <= 1 and row["gflop_per_update"] > 0
