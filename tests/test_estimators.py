@@ -126,3 +126,23 @@ def test_invalid_lever_values_raise_naming_the_field(field, value, match):
 def test_exact_splus_needs_a_finite_state_env():
     with pytest.raises(ValueError, match="Config.splus='exact'"):
         zsbfm.Config.preset("pointmass", "fb", splus="exact")
+
+
+def test_q_loss_matches_its_definition():
+    """q_loss: sum_k mean_i (F_k^T z - [B(s')^T C^-1 z + gamma min_k' Fbar_k'^T z])^2, C = E_rho B B^T."""
+    from zsbfm.agents.fb import q_loss
+
+    ks = jax.random.split(jax.random.PRNGKey(3), 6)
+    F, Ft = jax.random.normal(ks[0], (2, 5, 3)), jax.random.normal(ks[1], (2, 5, 3))
+    Bn, Bp, z = jax.random.normal(ks[2], (5, 3)), jax.random.normal(ks[3], (9, 3)), jax.random.normal(ks[4], (5, 3))
+    rho = jax.nn.softmax(jax.random.normal(ks[5], (9,)))
+    got = float(q_loss(F, Ft, Bn, Bp, z, 0.9, rho))
+    F, Ft, Bn, Bp, z, rho = map(lambda a: np.asarray(a, np.float64), (F, Ft, Bn, Bp, z, rho))
+    C = sum(rho[j] * np.outer(Bp[j], Bp[j]) for j in range(9))
+    C = C + 1e-4 * np.trace(C) / 3 * np.eye(3)
+    expect = 0.0
+    for k in range(2):
+        errs = [(F[k, i] @ z[i] - (Bn[i] @ np.linalg.solve(C, z[i]) + 0.9 * min(Ft[0, i] @ z[i], Ft[1, i] @ z[i]))) ** 2
+                for i in range(5)]
+        expect += np.mean(errs)
+    np.testing.assert_allclose(got, expect, rtol=1e-4)

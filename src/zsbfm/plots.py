@@ -67,7 +67,9 @@ def plot_curves(lines: dict, path, title: str = ""):
     per entry of `lines` ({label: metrics list}), one row of panels per split/protocol."""
     plt = _plt()
     data = {label: curve_arrays(m) for label, m in lines.items()}
-    keys = sorted({k for _, _, c in data.values() for k in c}, key=lambda k: (k.split("/")[1] != "paper", k))
+    order = {"paper": 0, "dense": 1, "random_start": 2, "return": 3}
+    keys = sorted({k for _, _, c in data.values() for k in c},
+                  key=lambda k: (order.get(k.split("/")[1], 9), k.split("/")[0] != "train"))
     if not keys:
         return None
     fig, axes = plt.subplots(len(keys), 2, figsize=(9, 2.6 * len(keys)), squeeze=False)
@@ -83,6 +85,9 @@ def plot_curves(lines: dict, path, title: str = ""):
         row[0].set_xlabel("updates", fontsize=8)
         row[1].set_xlabel("FLOPs (XLA cost analysis x updates)", fontsize=8)
         row[1].set_xscale("log")
+        from matplotlib.ticker import NullFormatter
+
+        row[1].xaxis.set_minor_formatter(NullFormatter())
         for ax in row:
             ax.set_ylim(0, 1) if "return" not in k else None
             ax.grid(alpha=0.3)
