@@ -12,6 +12,7 @@ where it stopped. A directory holding another config is moved aside, never delet
     results/<env>.json   per method: success per seed (train / test), wall times, run dir
     results/<env>.md     mean +- std over seeds beside the paper's values, wall time
     results/<env>.png    bar chart of train and test success (the paper's Figure 1)
+    (another --size writes results/<env>_<size>.*)
 """
 
 from __future__ import annotations
@@ -26,7 +27,7 @@ import time
 import numpy as np
 
 import zsbfm
-from zsbfm.config import Config
+from zsbfm.config import SIZES, Config
 from zsbfm.evaluate import metric_of
 
 # The paper's Tables 2 (train) and 1 (test): (train, test) success.
@@ -185,7 +186,7 @@ def main():
     p.add_argument("--env", default="fourrooms", choices=["fourrooms", "doors", "pointmass", "antwind"])
     p.add_argument("--algos", nargs="+", default=list(ORDER), choices=list(ORDER))
     p.add_argument("--seeds", type=int, default=3)
-    p.add_argument("--size", default="cpu", choices=["cpu", "paper"])
+    p.add_argument("--size", default="cpu", choices=list(SIZES))
     p.add_argument("--runs-dir", default="runs")
     p.add_argument("--out", default="results")
     p.add_argument("--set", nargs="*", default=[], help="Config overrides (field=value) for every method")
@@ -197,7 +198,8 @@ def main():
     t0 = time.time()
     rows = run_table(a.env, a.algos, a.seeds, a.runs_dir, a.set, a.size)
     os.makedirs(a.out, exist_ok=True)
-    stem = os.path.join(a.out, a.env)
+    # results/<env>.* is the CPU preset's table; other sizes get results/<env>_<size>.*
+    stem = os.path.join(a.out, a.env if a.size == "cpu" else f"{a.env}_{a.size}")
     with open(stem + ".json", "w") as f:
         json.dump({"env": a.env, "seeds": a.seeds, "size": a.size, "overrides": a.set, "methods": rows,
                    "paper": PAPER.get(a.env, {})}, f, indent=2)

@@ -90,7 +90,7 @@ def test_protocols_of_the_gridworld():
 
 
 def test_learning_curve_logs_every_protocol_and_ends_at_the_results(tmp_path):
-    cfg = tiny_config(tmp_path, steps=40, eval_every=2, name="curve")
+    cfg = tiny_config(tmp_path, steps=40, eval_every=2, name="curve", eval_protocols="all")
     before = TRACE_COUNTS["evaluate_protocols"]
     run = zsbfm.train(cfg, progress=False)
     assert TRACE_COUNTS["evaluate_protocols"] - before == 1, "the curve's evaluation compiles once"

@@ -20,7 +20,7 @@ ENVS = env_names()                     # the environments registered at import (
 ALGOS = ("fb", "bfb", "rfb", "oracle", "hilp", "lap", "random")  # the built-in agents (zsbfm.agents.AGENTS)
 BELIEF_ALGOS = ("bfb", "rfb")          # infer h with the context encoder
 ENCODER_MODES = ("staged", "joint")
-SIZES = ("cpu", "paper")
+SIZES = ("cpu", "long", "paper")   # "long": the gridworlds' ~3 h table (docs/results.md)
 TARGET_POLICIES = ("greedy", "boltzmann", "uniform")
 LR_SCHEDULES = ("constant", "cosine")
 SPLUS = ("batch", "states", "exact")    # the s+ estimator of the FB loss (agents/fb.py)
@@ -40,7 +40,7 @@ class Config:
     # --- what to run ---------------------------------------------------------------------
     env: str = "fourrooms"      # environment: one of ENVS (zsbfm.make_env)
     algo: str = "fb"            # algorithm: one of ALGOS (zsbfm.agents)
-    size: str = "cpu"           # which preset the sizes came from: "cpu" or "paper" (GPU)
+    size: str = "cpu"           # which preset the sizes came from: "cpu", "long" (gridworlds) or "paper" (GPU)
     name: str = ""              # run name; "" -> "<env>-<algo>-<size>"
     seed: int = 0               # master seed; seed i of the sweep uses split(PRNGKey(seed))[i]
     num_seeds: int = 3          # seeds trained together with jax.vmap
@@ -54,7 +54,7 @@ class Config:
     # antwind only: the behaviour data (zsbfm.data.expert), cached under data_dir/antwind/
     data_policy: str = "expert"  # "expert": the noisy wind-aware TD3 expert | "random"
     # env steps of TD3 training for the expert: the 300k-step expert returned 244 / 236 on
-    # train / test winds, the 1M-step one 533 / 607, and every method followed it (README)
+    # train / test winds, the 1M-step one 533 / 607, and every method followed it (docs/results.md)
     expert_steps: int = 1_000_000
     expert_noise: float = 0.2    # std of the Gaussian noise on the expert's actions in the data
     data_dir: str = "datasets"   # where cached datasets and experts live (antwind)
@@ -74,7 +74,7 @@ class Config:
     lr: float = 1e-3                          # Adam learning rate of F, B (and actor / features)
     lr_schedule: str = "constant"             # FB/actor/feature optimiser: "constant" | "cosine" (to 0 at the last step)
     batch_size: int = 256                     # transitions per update
-    gamma: float = 0.95                       # paper: 0.99 (see README: CPU budget)
+    gamma: float = 0.95                       # paper: 0.99 (docs/experiments.md: 10k-20k CPU updates cannot propagate its horizon)
     tau: float = 0.05                         # Polyak rate of the target networks (paper: 0.05)
     z_mix: float = 0.5                        # probability that a training z is B(s)
     ortho_coef: float = 1.0                   # weight of B's orthonormality loss
@@ -317,7 +317,9 @@ class Config:
             raise ValueError(f"Config.size={size!r} is invalid: expected one of {SIZES}")
         base: dict[str, Any] = dict(env=env, algo=algo, size=size)
         spec = env_spec(env)  # the env module's own preset overrides (zsbfm.envs.registry)
-        base.update(spec.presets.get(size, {}))
+        if size not in spec.presets:
+            raise ValueError(f"Config.size={size!r} is invalid for env {env!r}: expected one of {tuple(spec.presets)}")
+        base.update(spec.presets[size])
         if algo in BELIEF_ALGOS:  # the encoder phase comes on top of the FB steps
             base.update(_BELIEF_PRESETS[size])
             base.update(spec.belief_presets.get(size, {}))
@@ -401,6 +403,7 @@ LEGACY_DEFAULTS: dict[str, Any] = {"f_arch": "normed_trunk"}
 
 _BELIEF_PRESETS: dict[str, dict[str, Any]] = {
     "cpu": dict(enc_steps=4_000, steps=14_000),
+    "long": dict(enc_steps=4_000, steps=44_000),
     "paper": dict(enc_steps=10_000, steps=1_010_000, enc_embed=128, enc_mlp=256,
                   pred_hidden=(256, 256, 256), enc_lr=1e-4),
 }
