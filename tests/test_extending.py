@@ -22,3 +22,21 @@ def test_example_runs(tmp_path, i, capsys):
     exec(compile(examples()[i], f"extending.md example {i}", "exec"), {"RUNS": str(tmp_path), "__name__": "example"})
     out = capsys.readouterr().out
     assert out.strip(), "the example prints its result"
+
+
+def test_drivers_never_branch_on_an_env_name():
+    """train, evaluate, cli, run, plots, config and data ask the env's registered facts
+    (zsbfm.envs.registry.EnvSpec), never compare cfg.env with a built-in env's name, so a
+    registered env works through every driver."""
+    import glob
+
+    from zsbfm.envs import env_names
+
+    src = os.path.join(os.path.dirname(__file__), "..", "src", "zsbfm")
+    names = "|".join(env_names())
+    compare = re.compile(rf"""(==|!=|\bin)\s*[\(\[\{{]?\s*["']({names})["']""")
+    files = [os.path.join(src, f"{m}.py") for m in ("train", "evaluate", "cli", "run", "plots", "config", "sweep")]
+    files += glob.glob(os.path.join(src, "data", "*.py"))
+    hits = [f"{os.path.relpath(f, src)}:{i}: {line.strip()}" for f in files
+            for i, line in enumerate(open(f), 1) if compare.search(line)]
+    assert not hits, hits

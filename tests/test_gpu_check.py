@@ -5,9 +5,12 @@ import os
 import subprocess
 import sys
 
+import pytest
+
 ROOT = os.path.join(os.path.dirname(__file__), "..")
 
 
+@pytest.mark.slow  # ~60 s (a subprocess compiling two paper-layout programs): `make test-all`
 def test_gpu_check_runs_tiny_on_cpu(tmp_path):
     out = tmp_path / "gpu_check.json"
     env = dict(os.environ, JAX_PLATFORMS="cpu", BUDGET="1", GPU_CHECK_OUT=str(out), PY=sys.executable)

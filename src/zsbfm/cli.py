@@ -97,38 +97,33 @@ def collect(env: str = "fourrooms", n_train: int = 0, episodes_per_layout: int =
             seed: int = 0, out: str = "") -> None:
     """Collect the behaviour-policy dataset on the train layouts and save it as .npz.
 
-    n_train / episodes_per_layout: 0 takes the environment's CPU preset. antwind: trains
-    the wind-aware expert first (cached), then records and caches the dataset under
-    datasets/antwind/, where `train --env antwind` reads it (out is ignored)."""
+    n_train / episodes_per_layout: 0 takes the environment's CPU preset. An env whose data
+    is shared by every seed (EnvSpec.shares_data: AntWind) trains its behaviour expert first
+    (cached), then records and caches the dataset under the preset's data_dir, where
+    `train --env <env>` reads it (out is ignored)."""
     import time
 
     import jax
 
-    if env == "antwind":
-        from zsbfm.config import Config
-        from zsbfm.data.expert import antwind_env, load_or_collect_dataset
-
-        cfg = Config.preset("antwind", seed=seed, **({"episodes_per_layout": episodes_per_layout}
-                                                     if episodes_per_layout else {}))
-        t = time.time()
-        ds = load_or_collect_dataset(cfg, antwind_env(cfg))
-        print(f"antwind dataset: {ds.num_transitions} transitions ready in {time.time() - t:.0f}s")
-        return
-
+    from zsbfm.config import Config
     from zsbfm.data import collect as collect_data
     from zsbfm.data import save_dataset
-    from zsbfm.envs import make_env
+    from zsbfm.data.sources import make_env_for, shared_dataset
+    from zsbfm.envs import env_spec
 
-    from zsbfm.config import Config
-
-    preset = Config.preset(env)
-    n_train = n_train or preset.n_train_layouts
-    episodes_per_layout = episodes_per_layout or preset.episodes_per_layout
-    e = make_env(env, n_train=n_train, episode_len=preset.episode_len)
+    spec = env_spec(env)  # a one-line error naming the known envs
+    cfg = Config.preset(env, seed=seed, **({"n_train_layouts": n_train} if n_train else {}),
+                        **({"episodes_per_layout": episodes_per_layout} if episodes_per_layout else {}))
     t = time.time()
-    ds = jax.jit(lambda k: collect_data(e, k, e.contexts("train"), episodes_per_layout))(jax.random.PRNGKey(seed))
+    e = make_env_for(cfg)  # with its behaviour expert when the env's data comes from one
+    if spec.shares_data:
+        ds = shared_dataset(cfg, e)
+        print(f"{env} dataset: {ds.num_transitions} transitions ready in {time.time() - t:.0f}s "
+              f"(cached under {cfg.data_dir}/, where `train --env {env}` reads it)")
+        return
+    ds = jax.jit(lambda k: collect_data(e, k, e.contexts("train"), cfg.episodes_per_layout))(jax.random.PRNGKey(seed))
     ds.obs.block_until_ready()
-    out = out or os.path.join("datasets", f"{env}-{n_train}x{episodes_per_layout}-seed{seed}.npz")
+    out = out or os.path.join("datasets", f"{env}-{cfg.n_train_layouts}x{cfg.episodes_per_layout}-seed{seed}.npz")
     save_dataset(out, ds)
     print(f"{ds.num_transitions} transitions in {time.time() - t:.2f}s -> {out}")
 

@@ -216,9 +216,9 @@ class Config:
             bad("enc_beta", self.enc_beta, "enc_beta >= 0")
         if self.enc_contrast < 0:
             bad("enc_contrast", self.enc_contrast, "enc_contrast >= 0")
-        if self.enc_cell_tokens and self.env != "pointmass":
+        if self.enc_cell_tokens and not spec.cell_map:
             bad("enc_cell_tokens", self.enc_cell_tokens,
-                f"False for env={self.env!r} (only pointmass has positions in a cell map)")
+                f"False for env={self.env!r} (it has no cell map of positions: EnvSpec.cell_map)")
         if self.enc_pred_horizon > self.context_len:
             bad("enc_pred_horizon", self.enc_pred_horizon,
                 f"at most context_len={self.context_len} (steps ahead within a window)")

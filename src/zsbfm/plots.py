@@ -149,7 +149,8 @@ def plot_success(run, path):
 
 
 def value_map(agent, env, params, ctx, goal, key):
-    """V(s) = max_a Q(s, a) and the greedy action on every cell, for z from `goal`.
+    """V(s) = max_a Q(s, a) and the greedy action on every cell, for z from `goal`
+    (traceable: plot_value_maps jits it once for both panels).
 
     Returns (values float[H, W], actions int[H, W]) for one parameter set.
     """
@@ -177,11 +178,13 @@ def plot_value_maps(run, path, seed: int = 0, goal_index: int = 0):
     if not hasattr(env, "size") or not hasattr(agent, "q_values") or not env.discrete:
         return None  # value maps are drawn for gridworld agents with Q-values
     params = run.seed_params(seed)
+    # one compiled program for both panels (eagerly, every op would compile on its own)
+    vmap_fn = jax.jit(lambda params, ctx, goal, key: value_map(agent, env, params, ctx, goal, key))
     panels = []
     for split in ("train", "test"):
         ctx = index_contexts(env.contexts(split), 0)
         goal = env.eval_goals(ctx)[goal_index]
-        v, a = value_map(agent, env, params, ctx, goal, jax.random.PRNGKey(0))
+        v, a = vmap_fn(params, ctx, goal, jax.random.PRNGKey(0))
         panels.append(dict(walls=np.asarray(ctx.walls), values=np.asarray(v), actions=np.asarray(a),
                            start=tuple(np.asarray(env.eval_start(ctx)).astype(int)),
                            goals=[tuple(np.asarray(goal).astype(int))],

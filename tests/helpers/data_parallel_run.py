@@ -36,7 +36,9 @@ out["train"] = run.results["train"]
 # the chunk zsbfm.train compiled (XLA's dump of the optimised, partitioned module):
 hlo = "".join(p.read_text() for p in (runs / "hlo").glob("*run_chunk*after_optimizations.txt"))
 out["chunk_modules"] = len(list((runs / "hlo").glob("*run_chunk*after_optimizations.txt")))
-# the batch's observations per device: f32[seeds per device, batch per device, obs_dim=2]
+# the batch's sampled transition indices per device: s32[seeds per device, batch per device]
+# (half batches present, whole batches absent)
 out["all_reduce"] = len(re.findall(r"\ball-reduce(?:-start)?\(", hlo))
-out["half_batch"] = bool(re.search(rf"f32\[\d+,{cfg.batch_size // 2},2\]", hlo))
+out["half_batch"] = (bool(re.search(rf"s32\[\d+,{cfg.batch_size // 2}\]", hlo))
+                     and not re.search(rf"s32\[\d+,{cfg.batch_size}\]", hlo))
 print(json.dumps(out))

@@ -5,7 +5,7 @@ every seed.
 
 - cfg.dataset = "path.npz": that file (written by `python -m zsbfm collect`, or a user's own
   with the arrays documented in zsbfm.data.dataset), checked against the env first;
-- an env whose data is costly to record declares `shares_data = True` (AntWind: its noisy
+- an env whose data is costly to record registers `EnvSpec(shares_data=True)` (AntWind: its noisy
   expert's episodes, recorded once and cached under cfg.data_dir by zsbfm.data.expert);
 - otherwise None: every seed collects its own dataset on device from its data key
   (`zsbfm.data.collect`, the env's behaviour policy), inside the compiled program.
@@ -59,7 +59,7 @@ def shared_dataset(cfg, env, progress: bool = True) -> Dataset | None:
     """The dataset every seed of `cfg` trains on, or None when each seed collects its own."""
     if cfg.dataset:
         return check_dataset(load_dataset(cfg.dataset), env, cfg, cfg.dataset)
-    if getattr(env, "shares_data", False):
+    if env_spec(cfg.env).shares_data:
         from zsbfm.data.expert import load_or_collect_dataset
 
         return load_or_collect_dataset(cfg, env, progress)

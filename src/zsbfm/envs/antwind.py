@@ -138,7 +138,6 @@ class AntWind:
     n_actions = 0
     action_dim = 8
     metric = "return"
-    shares_data = True  # its expert episodes are recorded once and shared by every seed (zsbfm.data.sources)
     # bounds for input normalisation only (not enforced): z, quaternion, 8 joints, 14 velocities
     obs_low = (0.0,) + (-1.0,) * 4 + (-1.5,) * 8 + (-10.0,) * 14
     obs_high = (1.5,) + (1.0,) * 4 + (1.5,) * 8 + (10.0,) * 14
@@ -159,7 +158,7 @@ class AntWind:
 
     def context_features(self, ctx: WindContext) -> Array:
         """The wind as a vector (the oracle's "walls" context): (cos, sin) of its direction times its force."""
-        return jnp.stack([jnp.cos(ctx.angle), jnp.sin(ctx.angle)]) * ctx.force
+        return ctx.force[..., :2]
 
     def sample_contexts(self, key: Array, n: int) -> WindContext:
         """n winds of uniformly random direction in the train range [0, 3 pi / 2) (jittable)."""
@@ -225,7 +224,7 @@ def _make(n_train: int = N_TRAIN_WINDS, episode_len: int = 256) -> AntWind:
 # windows; returns over 256-step episodes.
 register(EnvSpec(
     name="antwind", make=_make, episode_len=256, discrete=False, n_train=N_TRAIN_WINDS, fixed_train=True,
-    expert_behaviour=True,
+    expert_behaviour=True, shares_data=True,
     presets={
         # TD3+BC actor (agents/fb.py): the pure -Q actor pushed saturated, costly actions off
         # the expert data (FB, 3 seeds: return -124 / -131 train / test with actor_bc=0,

@@ -113,8 +113,10 @@ N_TEST_LAYOUTS = 20
 _TEST_SEED, _TRAIN_SEED = 2024, 0
 
 
+@functools.lru_cache(maxsize=None)
 def fixed_layout_walls(family: str, n_train: int) -> tuple[np.ndarray, np.ndarray]:
-    """The fixed (train, test) layouts as numpy walls: bool[n_train, H, W], bool[20, H, W].
+    """The fixed (train, test) layouts as numpy walls: bool[n_train, H, W], bool[20, H, W]
+    (read-only, computed once per process).
 
     Drawn with the family's own jnp sampler from fixed keys; the 20 test layouts depend
     only on the family, so every n_train shares the same held-out set.
@@ -122,7 +124,10 @@ def fixed_layout_walls(family: str, n_train: int) -> tuple[np.ndarray, np.ndarra
     with jax.ensure_compile_time_eval():  # callable from inside a jit trace
         train, test = _fixed_layout_params(family, n_train)
         walls = jax.vmap(FAMILIES[family].walls_from_params)
-        return np.asarray(walls(jnp.asarray(train))), np.asarray(walls(jnp.asarray(test)))
+        out = np.asarray(walls(jnp.asarray(train))), np.asarray(walls(jnp.asarray(test)))
+    for w in out:
+        w.setflags(write=False)  # shared by every caller through the cache
+    return out
 
 
 @functools.lru_cache(maxsize=None)
