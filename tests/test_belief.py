@@ -122,37 +122,6 @@ def test_contrastive_loss_matches_a_loop_and_rewards_grouping_by_layout():
     assert float(grouped) < 0.01 < float(mixed)
 
 
-def test_pred_horizon_regresses_the_mean_of_the_next_k_states():
-    """predictor_mse with enc_pred_horizon=k against a loop over t of
-    |s_t + g(s_t, a_t, h) - mean(s_t+1..s_t+k)|^2 (normalised units), and k=1 is plain s'."""
-    cfgs = {k: zsbfm.Config.preset("pointmass", "bfb", d=8, enc_embed=8, enc_mlp=8, pred_hidden=(8,),
-                                   context_len=6, enc_pred_horizon=k) for k in (1, 3)}
-    env = zsbfm.make_env("pointmass", n_train=2)
-    agents = {k: make_agent(c, env) for k, c in cfgs.items()}
-    enc = agents[3].init(jax.random.PRNGKey(0)).params.enc
-    rng = np.random.default_rng(1)
-    n, L = 2, 6
-    traj = rng.uniform(4.0, 28.0, size=(n, L + 1, 2)).astype(np.float32)
-    obs, nxt = traj[:, :-1], traj[:, 1:]
-    act = rng.uniform(-1, 1, size=(n, L, 2)).astype(np.float32)
-    h = rng.normal(size=(n, 8)).astype(np.float32)
-    ag = agents[3]
-    g = lambda o, a_, hh: np.asarray(ag.predictor_net.apply(enc["predictor"], ag.obs_features(o),
-                                                            ag.action_features(a_), hh))
-    norm = lambda o: np.asarray(ag.normalize_obs(jnp.asarray(o)))
-    for k in (1, 3):
-        errs = [np.sum((norm(obs[i, t]) + g(obs[i, t], act[i, t], h[i])
-                        - norm(nxt[i, t:t + k]).mean(0)) ** 2)
-                for i in range(n) for t in range(L - k + 1)]
-        got = agents[k].predictor_mse(enc, jnp.asarray(h), *map(jnp.asarray, (obs, act, nxt)))
-        np.testing.assert_allclose(float(got), np.mean(errs), rtol=1e-4)
-
-
-def test_pred_horizon_must_fit_in_a_window():
-    with pytest.raises(ValueError, match="enc_pred_horizon=101"):
-        zsbfm.Config.preset("fourrooms", "bfb", enc_pred_horizon=101)
-
-
 def test_enc_contrast_must_be_non_negative():
     with pytest.raises(ValueError, match="enc_contrast"):
         zsbfm.Config.preset("antwind", "bfb", enc_contrast=-1.0)

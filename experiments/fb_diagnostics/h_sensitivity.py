@@ -1,7 +1,6 @@
-"""Q spread across the one-hot h of an oracle run, relative to |Q|, and the mean |W| of its FiLM layers.
+"""Q spread across the one-hot h of an oracle run, relative to |Q|.
 Usage: python experiments/fb_diagnostics/h_sensitivity.py runs/<oracle run> [...]"""
 import sys, numpy as np, jax, jax.numpy as jnp, zsbfm
-from flax.traverse_util import flatten_dict
 from zsbfm.agents import make_agent, Task
 from zsbfm.envs import make_env
 for path in sys.argv[1:]:
@@ -9,8 +8,6 @@ for path in sys.argv[1:]:
     env = make_env(cfg.env, n_train=cfg.n_train_layouts, episode_len=cfg.episode_len)
     agent = make_agent(cfg, env)
     p = run.seed_params(0)
-    fl = flatten_dict(p.F)
-    film = {"/".join(k[2:]): float(jnp.abs(v).mean()) for k, v in fl.items() if any(s.startswith("film_") for s in k) and k[-1] == "kernel"}
     S = env.size; H = cfg.n_train_layouts
     cells = jnp.asarray([(x, y) for y in range(1, S-1) for x in range(1, S-1)], jnp.float32)
     B = agent.backward(p.B, cells)
@@ -21,4 +18,4 @@ for path in sys.argv[1:]:
         Fs.append(np.asarray(agent.q_values(p, cells, Task(z=z[::-1], h=h))))
     Fs = np.stack(Fs)  # [H, n, A]
     between = np.abs(Fs - Fs.mean(0)).mean(); scale = np.abs(Fs).mean()
-    print(path, f"Q spread across h / |Q|: {between/scale:.4f}", "film |W| means:", {k: round(v, 4) for k, v in list(film.items())[:6]})
+    print(path, f"Q spread across h / |Q|: {between/scale:.4f}")

@@ -22,7 +22,6 @@ BELIEF_ALGOS = ("bfb", "rfb")          # infer h with the context encoder
 ENCODER_MODES = ("staged", "joint")
 SIZES = ("cpu", "long", "paper")   # "long": the gridworlds' ~3 h table (docs/results.md)
 TARGET_POLICIES = ("greedy", "boltzmann", "uniform")
-LR_SCHEDULES = ("constant", "cosine")
 SPLUS = ("batch", "states", "exact")    # the s+ estimator of the FB loss (agents/fb.py)
 # Float settings a vmapped sweep can vary inside one compiled program (zsbfm.sweep): each is
 # only ever used as a number in the traced code (no Python branch reads it). Any other field
@@ -30,7 +29,6 @@ SPLUS = ("batch", "states", "exact")    # the s+ estimator of the FB loss (agent
 SWEEPABLE = ("lr", "lr_B", "q_loss_coef", "tau", "gamma", "temperature", "ortho_coef", "z_mix", "clip_norm",
              "kappa", "enc_lr", "enc_beta", "feat_tau", "feat_gamma", "hilp_expectile",
              "hilp_p_traj_goal", "target_noise", "target_noise_clip")
-H_CONDS = ("concat", "film", "outer")  # how the context h enters F (nets/fb.py)
 F_ARCHS = ("reference", "normed_trunk")  # F's layer layout (nets/fb.py)
 DATA_POLICIES = ("expert", "random")
 
@@ -63,7 +61,7 @@ class Config:
     dataset: str = ""
 
     # --- FB -----------------------------------------------------------------------------
-    obs_encoding: str = "onehot"              # network input: "onehot" (grid coords) | "cell" | "raw"
+    obs_encoding: str = "onehot"              # network input: "onehot" (grid coords) | "raw"
     d: int = 50                               # latent dimension of z, F, B
     f_pre_hidden: tuple[int, ...] = (128,)    # preprocessor hidden layers
     f_pre_out: int = 128                      # preprocessor output width
@@ -72,13 +70,11 @@ class Config:
     b_hidden: tuple[int, ...] = (128, 128)    # B hidden layers
     f_heads: int = 2                          # independent F heads: 2 = twin F (min for the policy), 1 = single
     lr: float = 1e-3                          # Adam learning rate of F, B (and actor / features)
-    lr_schedule: str = "constant"             # FB/actor/feature optimiser: "constant" | "cosine" (to 0 at the last step)
     batch_size: int = 256                     # transitions per update
     gamma: float = 0.95                       # paper: 0.99 (docs/experiments.md: 10k-20k CPU updates cannot propagate its horizon)
     tau: float = 0.05                         # Polyak rate of the target networks (paper: 0.05)
     z_mix: float = 0.5                        # probability that a training z is B(s)
     ortho_coef: float = 1.0                   # weight of B's orthonormality loss
-    twin_target: str = "mean"                 # combine the twin target measures: "mean" | "min"
     target_policy: str = "greedy"             # "greedy" | "boltzmann" | "uniform"
     temperature: float = 1.0                  # Boltzmann target-policy temperature
     # s+ side of the off-diagonal and orthonormality terms (agents/fb.py FBAgent.loss):
@@ -99,7 +95,6 @@ class Config:
     # --- Belief-FB / Rotation-FB (ignored by fb) -------------------------------------------
     h_dim: int = 0               # dimension of the context h; 0 -> d (rfb needs h_dim = d)
     h_in_sa: bool = False        # h also enters F's (s, a) preprocessor (paper: only with z)
-    h_cond: str = "concat"       # how h conditions F: "concat" (input only) | "film" | "outer" (nets/fb.py)
     enc_embed: int = 32          # transformer width
     enc_heads: int = 4           # attention heads per block
     enc_layers: int = 2          # transformer blocks (0: a per-token MLP, mean-pooled)
@@ -109,7 +104,6 @@ class Config:
     enc_beta: float = 1e-6       # weight of KL(q(h | episode) || N(0, I)) in the encoder loss
     enc_contrast: float = 0.0    # weight of a same-layout InfoNCE on h (agents/belief.py; 0 = paper)
     enc_cell_tokens: bool = False  # pointmass: tokens also hold the one-hot map cell of s (agents/belief.py)
-    enc_pred_horizon: int = 1    # g regresses the mean of s_{t+1..t+k}, k = this (1 = the paper's s_{t+1})
     enc_steps: int = 4_000       # K: encoder pre-training steps before FB (staged mode)
     enc_batch: int = 16          # episodes (context windows) per encoder batch
     enc_target: str = "context"  # predict the window's own transitions, or another episode's of its layout ("context")
@@ -151,18 +145,14 @@ class Config:
             bad("algo", self.algo, f"one of {tuple(AGENTS)}")
         if self.size not in SIZES:
             bad("size", self.size, f"one of {SIZES}")
-        if self.twin_target not in ("mean", "min"):
-            bad("twin_target", self.twin_target, "'mean' or 'min'")
-        if self.obs_encoding not in ("raw", "onehot", "cell"):
-            bad("obs_encoding", self.obs_encoding, "'raw', 'onehot' or 'cell'")
+        if self.obs_encoding not in ("raw", "onehot"):
+            bad("obs_encoding", self.obs_encoding, "'raw' or 'onehot'")
         if self.enc_target not in ("episode", "context"):
             bad("enc_target", self.enc_target, "'episode' or 'context'")
         if self.encoder_mode not in ENCODER_MODES:
             bad("encoder_mode", self.encoder_mode, f"one of {ENCODER_MODES}")
         if self.f_arch not in F_ARCHS:
             bad("f_arch", self.f_arch, f"one of {F_ARCHS}")
-        if self.h_cond not in H_CONDS:
-            bad("h_cond", self.h_cond, f"one of {H_CONDS}")
         if self.data_policy not in DATA_POLICIES:
             bad("data_policy", self.data_policy, f"one of {DATA_POLICIES}")
         if not isinstance(self.expert_steps, int) or self.expert_steps <= 0:
@@ -192,14 +182,12 @@ class Config:
             bad("q_loss_coef", self.q_loss_coef, "q_loss_coef >= 0 (0: off)")
         if not self.lr_B >= 0:
             bad("lr_B", self.lr_B, "lr_B >= 0 (0: the same as lr)")
-        if self.lr_schedule not in LR_SCHEDULES:
-            bad("lr_schedule", self.lr_schedule, f"one of {LR_SCHEDULES}")
         if self.target_policy not in TARGET_POLICIES:
             bad("target_policy", self.target_policy, f"one of {TARGET_POLICIES}")
         for f in ("num_seeds", "n_train_layouts", "episodes_per_layout", "episode_len",
                   "context_len", "d", "f_pre_out", "batch_size", "steps", "chunk_steps",
                   "eval_episode_len", "enc_embed", "enc_heads", "enc_mlp",
-                  "enc_steps", "enc_batch", "windows_per_episode", "enc_pred_horizon", "splus_batch",
+                  "enc_steps", "enc_batch", "windows_per_episode", "splus_batch",
                   "f_heads"):
             v = getattr(self, f)
             if not isinstance(v, int) or isinstance(v, bool) or v <= 0:
@@ -219,9 +207,6 @@ class Config:
         if self.enc_cell_tokens and not spec.cell_map:
             bad("enc_cell_tokens", self.enc_cell_tokens,
                 f"False for env={self.env!r} (it has no cell map of positions: EnvSpec.cell_map)")
-        if self.enc_pred_horizon > self.context_len:
-            bad("enc_pred_horizon", self.enc_pred_horizon,
-                f"at most context_len={self.context_len} (steps ahead within a window)")
         if not self.kappa > 0:
             bad("kappa", self.kappa, "kappa > 0")
         if self.algo == "rfb" and self.h_dim not in (0, self.d):
@@ -262,7 +247,7 @@ class Config:
         if self.batch_size < 2:
             bad("batch_size", self.batch_size, "batch_size >= 2 (the FB loss pairs batch items)")
         if not spec.discrete and self.obs_encoding != "raw":
-            bad("obs_encoding", self.obs_encoding, f"'raw' for the continuous env {self.env!r} (one-hot/cell need a grid)")
+            bad("obs_encoding", self.obs_encoding, f"'raw' for the continuous env {self.env!r} (one-hot needs a grid)")
         if not self.actor_bc >= 0:
             bad("actor_bc", self.actor_bc, "actor_bc >= 0 (0 disables the behaviour-cloning term)")
         if self.actor_bc > 0 and spec.discrete:
@@ -316,6 +301,9 @@ class Config:
         if size not in SIZES:
             raise ValueError(f"Config.size={size!r} is invalid: expected one of {SIZES}")
         base: dict[str, Any] = dict(env=env, algo=algo, size=size)
+        for k in overrides:
+            if k in REMOVED_FIELDS:
+                raise ValueError(removed_option_error(k, overrides[k]))
         spec = env_spec(env)  # the env module's own preset overrides (zsbfm.envs.registry)
         if size not in spec.presets:
             raise ValueError(f"Config.size={size!r} is invalid for env {env!r}: expected one of {tuple(spec.presets)}")
@@ -327,10 +315,6 @@ class Config:
             # h also enters F's (s, a) preprocessor: with h only beside z, F barely used even
             # the true layout id (oracle, 4 layouts: 0.17 train success; with h_in_sa: 0.42).
             base.update(h_in_sa=True)
-            # h_cond stays "concat": FiLM (h_cond="film") did not help the oracle (1 seed, 10k
-            # steps, success on all free goal cells from the start): 4 layouts 0.32 vs 0.33,
-            # 20 layouts 0.34 vs 0.34 (official 3-goal metric 0.25 vs 0.42, 0.20 vs 0.20),
-            # although it doubled how much Q varies with h on 4 layouts (0.21 vs 0.11 of |Q|).
         if algo == "random":  # nothing to train: one no-op chunk
             base.update(steps=base.get("chunk_steps", 1_000))
         if algo in BELIEF_ALGOS and "steps" in overrides and "enc_steps" not in overrides:
@@ -364,6 +348,13 @@ class Config:
     @staticmethod
     def from_dict(d: dict) -> "Config":
         fields = {f.name: f for f in dataclasses.fields(Config)}
+        d = dict(d)
+        for k, (kept, _) in REMOVED_FIELDS.items():  # saved at the one value that remains: drop
+            if k in d and (value := d.pop(k)) != kept:
+                raise ValueError(removed_option_error(k, value))
+        for k, (values, _) in REMOVED_VALUES.items():
+            if d.get(k) in values:
+                raise ValueError(removed_option_error(k, d[k]))
         unknown = set(d) - set(fields)
         if unknown:
             raise ValueError(f"unknown Config fields {sorted(unknown)}")
@@ -378,6 +369,8 @@ class Config:
             if "=" not in item:
                 raise ValueError(f"override {item!r} must look like field=value")
             k, v = item.split("=", 1)
+            if k in REMOVED_FIELDS:
+                raise ValueError(removed_option_error(k, v))
             if k not in fields:
                 raise ValueError(f"unknown Config field {k!r}; fields: {', '.join(fields)}")
             current = getattr(self, k)
@@ -400,6 +393,25 @@ class Config:
 
 # Fields whose default changed: a saved config without the field ran with the old value.
 LEGACY_DEFAULTS: dict[str, Any] = {"f_arch": "normed_trunk"}
+
+# Options no preset used and no table showed better, removed from the code (their
+# measurements: docs/experiments.md, "Removed options"; the code: commit REMOVED_IN's parent).
+# A saved config.json that holds a removed field at the value that remains loads as before;
+# one that used a removed option is a one-line error.
+REMOVED_IN = "c971d54"
+REMOVED_FIELDS: dict[str, tuple[Any, str]] = {  # field: (the value that remains, what it was)
+    "h_cond": ("concat", "how h conditioned F: FiLM or the outer product"),
+    "twin_target": ("mean", "the min of the twin target measures"),
+    "lr_schedule": ("constant", "a cosine learning-rate schedule"),
+    "enc_pred_horizon": (1, "the predictor regressing the mean of the next k states"),
+}
+REMOVED_VALUES: dict[str, tuple[tuple, str]] = {"obs_encoding": (("cell",), "a one-hot of the grid cell")}
+
+
+def removed_option_error(field: str, value) -> str:
+    what = REMOVED_FIELDS.get(field, REMOVED_VALUES.get(field))[1]
+    return (f"Config.{field}={value!r} is a removed option ({what}): the run needs zsbfm at commit "
+            f"{REMOVED_IN} or earlier (docs/experiments.md, 'Removed options')")
 
 _BELIEF_PRESETS: dict[str, dict[str, Any]] = {
     "cpu": dict(enc_steps=4_000, steps=14_000),

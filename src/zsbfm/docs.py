@@ -67,8 +67,14 @@ def configuration_markdown() -> str:
         flag = " *(sweepable)*" if name in SWEEPABLE else ""
         rows.append(f"| `{name}` | `{value!r}` | {text.replace('|', '/')}{flag} |")
     rows += ["", "## Allowed values", ""]
-    for const in ("ENVS", "ALGOS", "SIZES", "TARGET_POLICIES", "SPLUS", "H_CONDS", "F_ARCHS", "LR_SCHEDULES"):
+    for const in ("ENVS", "ALGOS", "SIZES", "TARGET_POLICIES", "SPLUS", "F_ARCHS"):
         rows.append(f"- `{const}`: {', '.join(map(str, getattr(config, const)))}")
+    rows += ["", "## Removed options", "",
+             f"Saved runs that used one of these need zsbfm at commit `{config.REMOVED_IN}` or earlier; "
+             "a saved config.json holding the value that remains loads as before "
+             "(their measurements: docs/experiments.md, \"Removed options\").", ""]
+    rows += [f"- `{k}` (kept: `{kept!r}`): {what}" for k, (kept, what) in config.REMOVED_FIELDS.items()]
+    rows += [f"- `{k}` values {', '.join(f'`{v!r}`' for v in vals)}: {what}" for k, (vals, what) in config.REMOVED_VALUES.items()]
     return "\n".join(rows) + "\n"
 
 

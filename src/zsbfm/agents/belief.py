@@ -171,20 +171,9 @@ class BeliefFBAgent(FBAgent):
         return loss, (metrics, mu)
 
     def predictor_mse(self, enc, h: Array, obs: Array, action: Array, next_obs: Array) -> Array:
-        """mean_{i,t} |g(s_it, a_it, h_i) - y_it|^2 in normalised units; h [n, h_dim], obs [n, L, ...].
-
-        With k = enc_pred_horizon, y_it = mean(s_i,t+1, ..., s_i,t+k) for the L - k + 1 steps t
-        whose k successors lie in the window (k = 1: y = s', the paper's predictor). A k-step
-        mean carries the context's slow effects (AntWind: the drift the wind gives the torso's
-        velocity) that one step hides under contact noise.
-        """
-        k = self.cfg.enc_pred_horizon
+        """mean_{i,t} |g(s_it, a_it, h_i) - s'_it|^2 in normalised units (the paper's
+        predictor); h [n, h_dim], obs [n, L, ...]."""
         nxt = self.normalize_obs(next_obs)
-        if k > 1:
-            csum = jnp.cumsum(nxt, axis=1)                                    # [n, L, obs]
-            csum = jnp.concatenate([jnp.zeros_like(csum[:, :1]), csum], 1)    # [n, L + 1, obs]
-            nxt = (csum[:, k:] - csum[:, :-k]) / k                            # [n, L - k + 1, obs]
-            obs, action = obs[:, :nxt.shape[1]], action[:, :nxt.shape[1]]
         h_tok = jnp.broadcast_to(h[:, None], obs.shape[:2] + h.shape[-1:])
         # g predicts y as s + displacement (normalised units): the same regression of y.
         pred = self.normalize_obs(obs) + self.predictor_net.apply(

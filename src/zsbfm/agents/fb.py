@@ -47,7 +47,7 @@ def fb_loss(F: Array, B: Array, target_M: Array, gamma: float) -> tuple[Array, d
     F:        [K, n, d]  F_k(s_i, a_i, w_i) for the batch's (s, a, w)
     B:        [n, d]     B(s'_j) for the batch's next states
     target_M: [n, n]     Fbar(s'_i, pi(s'_i), w_i)^T Bbar(s'_j), mean or min over the
-                         twin heads (Config.twin_target)                      (stop-gradient)
+                         twin heads                                           (stop-gradient)
 
     L = sum_k [ 0.5 * mean_{i != j} (M_k[i, j] - gamma target_M[i, j])^2 - mean_i M_k[i, i] ]
     with M_k = F_k B^T: the off-diagonal pairs estimate the measure on independent
@@ -189,7 +189,7 @@ class FBAgent:
     def F_net(self) -> TwinForward:
         c = self.cfg
         return TwinForward(c.d, self.env.n_actions, c.f_pre_hidden, c.f_pre_out, c.f_hidden,
-                           h_dim=self.h_dim, h_in_sa=c.h_in_sa, h_cond=c.h_cond, arch=c.f_arch,
+                           h_dim=self.h_dim, h_in_sa=c.h_in_sa, arch=c.f_arch,
                            heads=c.f_heads)
 
     @property
@@ -202,10 +202,8 @@ class FBAgent:
 
     @property
     def optimizer(self) -> optax.GradientTransformation:
-        """Adam at lr, constant or cosine-decayed to 0 over the run's fb_steps updates."""
-        c = self.cfg
-        lr = c.lr if c.lr_schedule == "constant" else optax.cosine_decay_schedule(c.lr, c.fb_steps)
-        return optax.adam(lr)
+        """Adam at a constant lr."""
+        return optax.adam(self.cfg.lr)
 
     def normalize_obs(self, obs: Array) -> Array:
         """Map observations from [obs_low, obs_high] to [0, 1].
@@ -224,19 +222,11 @@ class FBAgent:
         "onehot": one-hot of each integer coordinate, [..., sum of (high - low + 1)]; for
                   grid observations. Same information as (x, y), but lets an MLP carve
                   the sharp wall discontinuities of a successor measure on a grid.
-        "cell":   one-hot of the cell itself, [..., prod of (high - low + 1)]: the first
-                  layer holds a free embedding per cell (a tabular input), where "onehot"
-                  makes it additive in x and y.
         """
         if self.cfg.obs_encoding == "raw":
             return self.normalize_obs(obs)
         idx = jnp.round(obs - jnp.asarray(self.env.obs_low)).astype(jnp.int32)
         sizes = [int(h - l) + 1 for l, h in zip(self.env.obs_low, self.env.obs_high)]
-        if self.cfg.obs_encoding == "cell":
-            flat = jnp.zeros(idx.shape[:-1], jnp.int32)
-            for i, n in enumerate(sizes):  # row-major over the coordinates
-                flat = flat * n + idx[..., i]
-            return jax.nn.one_hot(flat, math.prod(sizes))
         return jnp.concatenate([jax.nn.one_hot(idx[..., i], n) for i, n in enumerate(sizes)], -1)
 
     def forward(self, F_params, obs: Array, task: Task, action: Array | None = None) -> Array:
@@ -380,9 +370,9 @@ class FBAgent:
             plus = aux["splus"] if self.cfg.splus == "states" else self.env.states()
             B_plus = self.backward(params.B, plus)                           # [m, d]
         target_Ms = jnp.einsum("knd,md->knm", target_F, self.backward(target.B, plus))  # [2, n, m]
-        # "mean" (metamotivo's default): min is a per-step downward bias that the TD
-        # recursion amplifies by 1/(1-gamma) on the off-diagonal (unbounded-sign) measure.
-        target_M = jnp.mean(target_Ms, 0) if self.cfg.twin_target == "mean" else jnp.min(target_Ms, 0)
+        # the mean of the twin heads (metamotivo's default): their min is a per-step downward
+        # bias that the TD recursion amplifies by 1/(1-gamma) on the off-diagonal measure.
+        target_M = jnp.mean(target_Ms, 0)
         if self.cfg.splus == "batch":
             l_fb, metrics = fb_loss(F, B_next, target_M, self.cfg.gamma)
             l_ortho = ortho_loss(B_next)

@@ -11,7 +11,7 @@ F holds psi and B holds phi.
 
 Losses (one optimiser step on the sum; phi gets gradients from its own loss only):
     SF:   sum_k 0.5 * mean_i |psi_k(s_i, a_i, z_i) - (c_i + gamma * psibar(s'_i, pi(s'_i), z_i))|^2
-          (psibar: the mean of the twin target heads, as FB's default twin_target)
+          (psibar: the mean of the twin target heads, as in FB)
     HILP: IQL expectile regression of V(s, g) = -|phi(s) - phi(g)| (twin phi heads), reward
           -1 until s = g, goals g = a future state of the same episode (prob p) or a random one
     LAP:  mean |phi(s) - phi(s')|^2 + ortho_coef * orthonormality of phi over the batch

@@ -13,23 +13,9 @@ Config.f_arch:
                worse F (README, Presets).
 B(s) is an MLP to d, projected onto the sphere of radius sqrt(d).
 
-How the context h (the last h_dim entries of w) enters F (Config.h_cond), one place for
-discrete and continuous F:
-  "concat": h is an input only, beside z in pre_sw (the paper's wiring), and in pre_sa
-            too when h_in_sa.
-  "film":   as "concat", and every hidden layer of pre_sa, pre_sw and the trunk is
-            FiLM-modulated by h (Perez et al. 2018): with u the layer's pre-activation
-            [..., width] (after LayerNorm on the first layer),
-                u <- (1 + gamma(h)) * u + beta(h),   [gamma(h); beta(h)] = W h + b,
-            W: [h_dim, 2 width], b: [2 width], both initialised to zero, so F starts as
-            exactly the "concat" network (identity modulation). With a one-hot h (oracle)
-            this is a per-layout scale and shift of every hidden unit; before the ReLU it
-            can switch units on and off per context.
-  "outer":  as "concat", and pre_sa's input also holds the outer product of the state
-            features and h, flattened: [..., obs_feat * h_dim]. Its first layer is then
-            W(h) x = W_0 x + sum_k h_k W_k x, a context-dependent embedding of the state
-            (with a one-hot layout id, one embedding table per layout; with onehot (x, y)
-            features, per-layout embeddings of each row and column).
+The context h (the last h_dim entries of w) is an input of F: beside z in pre_sw (the
+paper's wiring), and in pre_sa too when Config.h_in_sa. (FiLM and outer-product
+conditioning were tried and removed: docs/experiments.md, "Removed options".)
 """
 
 from __future__ import annotations
@@ -40,7 +26,7 @@ from typing import Sequence
 import flax.linen as nn
 import jax.numpy as jnp
 
-from zsbfm.config import F_ARCHS, H_CONDS
+from zsbfm.config import F_ARCHS
 from zsbfm.nets.mlp import MLP
 from zsbfm.ops.sphere import project_to_sphere
 
@@ -50,7 +36,7 @@ class ForwardNet(nn.Module):
 
     obs: [..., obs_feat]; task w = [z; h]: [..., d + h_dim]; action: [..., action_dim] or None.
     h_dim: the number of trailing entries of w that are the context h (0: no context).
-    h_in_sa: h also enters pre_sa. h_cond: "concat" or "film" (module docstring).
+    h_in_sa: h also enters pre_sa.
     """
 
     d: int
@@ -60,30 +46,23 @@ class ForwardNet(nn.Module):
     hidden: Sequence[int]
     h_dim: int = 0
     h_in_sa: bool = False
-    h_cond: str = "concat"
     arch: str = "reference"
 
     @nn.compact
     def __call__(self, obs, task, action=None):
         if self.arch not in F_ARCHS:
             raise ValueError(f"arch={self.arch!r} is invalid: expected one of {F_ARCHS}")
-        if self.h_cond not in H_CONDS:
-            raise ValueError(f"h_cond={self.h_cond!r} is invalid: expected one of {H_CONDS}")
         h = task[..., task.shape[-1] - self.h_dim:]
         sa = obs if action is None else jnp.concatenate([obs, action], -1)
         if self.h_in_sa and self.h_dim:
             sa = jnp.concatenate([sa, h], -1)
-        if self.h_cond == "outer" and self.h_dim:
-            outer = obs[..., :, None] * h[..., None, :]
-            sa = jnp.concatenate([sa, outer.reshape(*outer.shape[:-2], -1)], -1)
         sw = jnp.concatenate([obs, task], -1)
         out = self.d * self.n_actions if self.n_actions else self.d
         ref = self.arch == "reference"
         pre, trunk = dict(out_relu=ref), dict(norm_first=not ref)
-        film = h if self.h_cond == "film" and self.h_dim else None  # None: no film_<i> params
-        e_sa = MLP(self.pre_hidden, self.pre_out, name="pre_sa", **pre)(sa, film)
-        e_sw = MLP(self.pre_hidden, self.pre_out, name="pre_sw", **pre)(sw, film)
-        y = MLP(self.hidden, out, name="trunk", **trunk)(jnp.concatenate([e_sa, e_sw], -1), film)
+        e_sa = MLP(self.pre_hidden, self.pre_out, name="pre_sa", **pre)(sa)
+        e_sw = MLP(self.pre_hidden, self.pre_out, name="pre_sw", **pre)(sw)
+        y = MLP(self.hidden, out, name="trunk", **trunk)(jnp.concatenate([e_sa, e_sw], -1))
         if self.n_actions:
             return y.reshape(*y.shape[:-1], self.n_actions, self.d)
         return y

@@ -1,0 +1,46 @@
+"""Runs saved by an earlier version still load and evaluate to the numbers they reported."""
+
+import json
+import os
+
+import numpy as np
+import pytest
+
+import zsbfm
+from zsbfm.evaluate import protocol_score
+
+# A tiny 2-seed FB run on Four-Rooms (400 updates) written at commit c971d54, the last with
+# the removed options (zsbfm.config.REMOVED_FIELDS): its config.json still holds h_cond,
+# twin_target, lr_schedule and enc_pred_horizon, at the values that remain.
+FIXTURE = os.path.join(os.path.dirname(__file__), "fixtures", "fb_c971d54")
+
+
+def test_a_run_saved_before_the_options_were_removed_evaluates_to_its_numbers():
+    with open(os.path.join(FIXTURE, "config.json")) as f:
+        assert {"h_cond", "twin_target", "lr_schedule", "enc_pred_horizon"} <= set(json.load(f))
+    run = zsbfm.load(FIXTURE)
+    assert run.cfg.steps == 400 and run.cfg.num_seeds == 2
+    for protocol in ("dense", "random_start"):
+        reported = run.results["protocols"][protocol]
+        assert max(max(v) for v in reported.values()) > 0  # numbers that could differ
+        for split in ("train", "test"):
+            again = np.asarray(protocol_score(*zsbfm.evaluate(run, split=split, protocol=protocol)))
+            np.testing.assert_allclose(again, reported[split], atol=1e-4)
+
+
+@pytest.mark.parametrize("field,value", [("h_cond", "film"), ("twin_target", "min"),
+                                         ("lr_schedule", "cosine"), ("enc_pred_horizon", 3),
+                                         ("obs_encoding", "cell")])
+def test_a_run_that_used_a_removed_option_is_a_one_line_error(field, value):
+    with open(os.path.join(FIXTURE, "config.json")) as f:
+        d = json.load(f)
+    d[field] = value
+    with pytest.raises(ValueError, match=rf"Config.{field}={value!r} is a removed option .* c971d54 or earlier"):
+        zsbfm.Config.from_dict(d)
+
+
+def test_setting_a_removed_field_names_it():
+    with pytest.raises(ValueError, match="Config.h_cond='film' is a removed option"):
+        zsbfm.Config.preset("fourrooms", "bfb", h_cond="film")
+    with pytest.raises(ValueError, match="Config.twin_target='min' is a removed option"):
+        zsbfm.Config.preset("fourrooms").with_overrides(["twin_target=min"])
