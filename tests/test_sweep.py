@@ -92,6 +92,7 @@ def test_protocols_of_the_gridworld():
         env.eval_tasks(ctx, "nope", jax.random.PRNGKey(0))
 
 
+@pytest.mark.plots
 def test_learning_curve_logs_every_protocol_and_ends_at_the_results(tmp_path):
     cfg = tiny_config(tmp_path, steps=40, eval_every=2, name="curve", eval_protocols="all")
     before = TRACE_COUNTS["evaluate_protocols"]
@@ -113,8 +114,9 @@ def test_learning_curve_logs_every_protocol_and_ends_at_the_results(tmp_path):
     assert os.path.exists(tmp_path / "runs" / "curve" / "curves.png")
 
 
-# rfb evaluates through the belief path bfb covers (~40 s): in `make test-all`
-@pytest.mark.parametrize("algo", ["fb", "bfb", pytest.param("rfb", marks=pytest.mark.slow), "oracle", "hilp", "lap", "random"])
+# rfb, oracle and lap evaluate through the paths bfb, bfb and hilp cover: in `make test-all`
+@pytest.mark.parametrize("algo", ["fb", "bfb", "hilp", "random"] + [pytest.param(a, marks=pytest.mark.slow)
+                                                                   for a in ("rfb", "oracle", "lap")])
 def test_evaluate_reproduces_the_run_results(tmp_path, algo):
     extra = dict(steps=20, enc_steps=10) if algo in ("bfb", "rfb") else dict(steps=20)
     cfg = tiny_config(tmp_path, algo=algo, eval_protocols="official", name=f"ev-{algo}", **extra)

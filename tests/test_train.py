@@ -25,6 +25,7 @@ def tiny_run(tmp_path_factory):
     return run, TRACE_COUNTS["run_chunk"] - before
 
 
+@pytest.mark.plots
 def test_end_to_end_writes_results_and_plots(tiny_run):
     run, _ = tiny_run
     run_dir = os.path.join(run.cfg.runs_dir, run.cfg.run_name)
