@@ -137,6 +137,7 @@ def test_every_algo_trains_and_evaluates(tmp_path, algo):
     assert loaded.results == run.results
 
 
+@pytest.mark.slow  # experiments/table.py over four tiny runs, ~27 s: `make test-all`
 def test_table_harness_writes_results_and_reads_finished_runs_back(tmp_path, capsys):
     import sys
 

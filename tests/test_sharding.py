@@ -63,6 +63,7 @@ def reference(tmp_path_factory):
     return zsbfm.train(tiny_config(tmp, steps=30, chunk_steps=10, name="ref"), progress=False)
 
 
+@pytest.mark.slow  # a 2-device subprocess, ~50 s: `make test-all` (the default run keeps the 1-device mesh)
 def test_data_parallel_equals_single_device_and_resumes_on_one(tmp_path, reference):
     out = subprocess.run([sys.executable, "tests/helpers/data_parallel_run.py", str(tmp_path)],
                          capture_output=True, text=True, check=True, timeout=300)
