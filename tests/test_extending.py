@@ -40,3 +40,24 @@ def test_drivers_never_branch_on_an_env_name():
     hits = [f"{os.path.relpath(f, src)}:{i}: {line.strip()}" for f in files
             for i, line in enumerate(open(f), 1) if compare.search(line)]
     assert not hits, hits
+
+
+def test_callers_ask_the_env_contract_instead_of_probing():
+    """Every built-in env subclasses EnvBase (the optional capabilities with their defaults),
+    and no caller probes an env with hasattr / getattr."""
+    import glob
+
+    import zsbfm
+    from zsbfm.envs import EnvBase, env_names
+
+    envs = {name: zsbfm.make_env(name) for name in env_names() if name != "antwind"}  # antwind: MJX, slow
+    assert all(isinstance(e, EnvBase) for e in envs.values())
+    assert envs["fourrooms"].behaviour_policy(None) is None and envs["fourrooms"].metric == "success"
+    from zsbfm.envs.antwind import AntWind
+
+    assert issubclass(AntWind, EnvBase) and AntWind.metric == "return"
+    src = os.path.join(os.path.dirname(__file__), "..", "src", "zsbfm")
+    probe = re.compile(r"\b(hasattr|getattr)\((self\.)?env\b")
+    hits = [f"{os.path.relpath(f, src)}:{i}: {line.strip()}" for f in glob.glob(os.path.join(src, "**", "*.py"), recursive=True)
+            for i, line in enumerate(open(f), 1) if probe.search(line)]
+    assert not hits, hits

@@ -49,7 +49,7 @@ def return_rollout(agent, env, params, key, ctx, context: Context, reward_obs, l
 
 def metric_of(env) -> str:
     """"success" (goal reaching) or "return" (a reward task), by environment."""
-    return getattr(env, "metric", "success")
+    return env.metric
 
 
 def evaluate_params(agent, env, params, key, contexts, goals, length: int, context_len: int,
@@ -91,7 +91,7 @@ def protocols_of(env) -> tuple[str, ...]:
     `eval_protocols` for goal reaching, ("return",) for a reward task."""
     if metric_of(env) == "return":
         return ("return",)
-    return tuple(getattr(env, "eval_protocols", ("paper",)))
+    return tuple(env.eval_protocols)
 
 
 def evaluate_protocol(agent, env, params, key, contexts, protocol: str, length: int,

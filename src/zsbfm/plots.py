@@ -169,14 +169,14 @@ def value_map(agent, env, params, ctx, goal, key):
 def plot_value_maps(run, path, seed: int = 0, goal_index: int = 0):
     """Value maps and greedy arrows of one seed on the first train and test layout."""
     from zsbfm.agents import make_agent
-    from zsbfm.envs import index_contexts, make_env
+    from zsbfm.envs import env_spec, index_contexts, make_env
     from zsbfm.envs.render import render_layouts
 
     cfg = run.cfg
     env = make_env(cfg.env, n_train=cfg.n_train_layouts, episode_len=cfg.episode_len)
     agent = make_agent(cfg, env)
-    if not hasattr(env, "size") or not hasattr(agent, "q_values") or not env.discrete:
-        return None  # value maps are drawn for gridworld agents with Q-values
+    if not (env_spec(cfg.env).finite_states and env.discrete) or not hasattr(agent, "q_values"):
+        return None  # value maps are drawn on grids (every cell a state), for agents with Q-values
     params = run.seed_params(seed)
     # one compiled program for both panels (eagerly, every op would compile on its own)
     vmap_fn = jax.jit(lambda params, ctx, goal, key: value_map(agent, env, params, ctx, goal, key))

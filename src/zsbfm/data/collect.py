@@ -39,11 +39,13 @@ def behaviour_rollout(env: Env, key: jax.Array, ctx, length: int):
     """One reward-free episode of the environment's behaviour policy: its closed-loop
     `behaviour_policy(ctx)` (antwind: the noisy expert), its open-loop `behaviour_actions`
     (pointmass: sticky directions), else uniform actions."""
-    if hasattr(env, "behaviour_policy"):
-        return rollout(env, key, ctx, env.behaviour_policy(ctx), length)
-    if hasattr(env, "behaviour_actions"):
-        k_act, k_roll = jax.random.split(key)
-        return rollout(env, k_roll, ctx, env.behaviour_actions(k_act, length), length)
+    policy = env.behaviour_policy(ctx)
+    if policy is not None:
+        return rollout(env, key, ctx, policy, length)
+    k_act, k_roll = jax.random.split(key)
+    actions = env.behaviour_actions(k_act, length)
+    if actions is not None:
+        return rollout(env, k_roll, ctx, actions, length)
     return rollout(env, key, ctx, uniform_policy(env), length)
 
 

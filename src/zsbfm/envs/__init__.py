@@ -4,7 +4,7 @@ Importing this package registers the built-in environments."""
 
 from zsbfm.envs import gridworld, pointmass, antwind  # noqa: F401, I001  (each registers itself, in this order)
 from zsbfm.envs.antwind import AntWind, WindContext
-from zsbfm.envs.base import Env, EnvState, index_contexts, num_contexts
+from zsbfm.envs.base import Env, EnvBase, EnvState, index_contexts, num_contexts
 from zsbfm.envs.gridworld import GridContext, GridWorld
 from zsbfm.envs.pointmass import MazeContext, PointMass
 from zsbfm.envs.registry import EnvSpec, env_names, env_spec, make_env, register
@@ -12,6 +12,6 @@ from zsbfm.envs.registry import EnvSpec, env_names, env_spec, make_env, register
 ENV_NAMES = env_names()
 
 
-__all__ = ["AntWind", "WindContext", "Env", "EnvSpec", "EnvState", "GridContext", "GridWorld",
+__all__ = ["AntWind", "WindContext", "Env", "EnvBase", "EnvSpec", "EnvState", "GridContext", "GridWorld",
            "MazeContext", "PointMass", "ENV_NAMES", "make_env", "env_spec", "env_names", "register",
            "index_contexts", "num_contexts"]

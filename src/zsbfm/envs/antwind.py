@@ -43,7 +43,7 @@ import jax.numpy as jnp
 import numpy as np
 from flax import struct
 
-from zsbfm.envs.base import EnvState
+from zsbfm.envs.base import EnvBase, EnvState
 from zsbfm.envs.registry import EnvSpec, register
 
 Array = jax.Array
@@ -124,7 +124,7 @@ def state_reward(obs: Array) -> Array:
 
 
 @dataclasses.dataclass(frozen=True)
-class AntWind:
+class AntWind(EnvBase):
     """AntWind (see the module docstring). Hashable: the MJX model is a module-level cache."""
 
     episode_len: int = 256

@@ -66,6 +66,35 @@ class Env(Protocol):
     def eval_start(self, ctx: Any) -> Array: ...
     def eval_goals(self, ctx: Any) -> Array: ...
 
+    # optional capabilities: every built-in env subclasses EnvBase, which declares their
+    # "not supported" defaults, so callers ask the env instead of probing with hasattr
+    metric: str
+    eval_protocols: tuple[str, ...]
+    def behaviour_policy(self, ctx: Any) -> Any: ...
+    def behaviour_actions(self, key: Array, length: int) -> Array | None: ...
+
+
+class EnvBase:
+    """The defaults of Env's optional capabilities; an environment subclasses this and
+    overrides what it supports.
+
+    metric:            "success" (goal reaching, the default) or "return" (a reward task).
+    eval_protocols:    the goal-reaching protocols env.eval_tasks knows, the official first.
+    behaviour_policy:  the closed-loop behaviour policy(key, obs) -> action in context ctx,
+                       or None (the default: no such policy).
+    behaviour_actions: an open-loop behaviour action sequence [length, ...] from key, or
+                       None (the default). With neither, the data are uniform random actions.
+    """
+
+    metric = "success"
+    eval_protocols: tuple[str, ...] = ("paper",)
+
+    def behaviour_policy(self, ctx: Any):
+        return None
+
+    def behaviour_actions(self, key: Array, length: int):
+        return None
+
 
 def num_contexts(ctxs: Any) -> int:
     """Length of the leading (layout) axis of a stacked context pytree."""

@@ -21,7 +21,7 @@ import jax.numpy as jnp
 import numpy as np
 from flax import struct
 
-from zsbfm.envs.base import EnvState
+from zsbfm.envs.base import EnvBase, EnvState
 from zsbfm.envs.registry import EnvSpec, register
 
 Array = jax.Array
@@ -159,7 +159,7 @@ def _fixed_layout_params(family: str, n_train: int) -> tuple[np.ndarray, np.ndar
 
 
 @dataclasses.dataclass(frozen=True)
-class GridWorld:
+class GridWorld(EnvBase):
     """A randomized gridworld (see module docstring). Hashable: usable as a static arg."""
 
     family: str

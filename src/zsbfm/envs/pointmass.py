@@ -38,7 +38,7 @@ import jax.numpy as jnp
 import numpy as np
 from flax import struct
 
-from zsbfm.envs.base import EnvState
+from zsbfm.envs.base import EnvBase, EnvState
 from zsbfm.envs.registry import EnvSpec, register
 
 Array = jax.Array
@@ -176,7 +176,7 @@ def integrate(pos: Array, vel: Array, force: Array, dt: float = DT):
 
 
 @dataclasses.dataclass(frozen=True)
-class PointMass:
+class PointMass(EnvBase):
     """Randomized Pointmass (see the module docstring). Hashable: usable as a static arg."""
 
     n_train: int = 30
