@@ -140,7 +140,8 @@ def test_antwind_rfb_end_to_end(tmp_path):
     """A tiny expert (random warm-up only), a tiny dataset (cached, then read back) and a
     tiny Rotation-FB run through zsbfm.train: returns per seed, finite and different."""
     import zsbfm
-    from zsbfm.data.expert import antwind_env, load_or_collect_dataset
+    from zsbfm.data.expert import load_or_collect_dataset
+    from zsbfm.data.sources import make_env_for
 
     cfg = Config.preset("antwind", "rfb", num_seeds=2, expert_steps=512, episodes_per_layout=2,
                         data_dir=str(tmp_path / "data"), runs_dir=str(tmp_path / "runs"), d=8,
@@ -154,5 +155,5 @@ def test_antwind_rfb_end_to_end(tmp_path):
     assert train[0] != train[1]  # vmapped seeds are different runs
     cached = sorted((tmp_path / "data" / "antwind").iterdir())
     assert [p.suffix for p in cached] == [".npz", ".pkl"]  # the dataset and the expert, cached
-    ds = load_or_collect_dataset(cfg, antwind_env(cfg, progress=False), progress=False)  # read back
+    ds = load_or_collect_dataset(cfg, make_env_for(cfg, progress=False), progress=False)  # read back
     assert ds.obs.shape == (15 * 2, 257, 27) and ds.action.shape == (15 * 2, 256, 8)

@@ -1,7 +1,7 @@
 """Wind-aware expert data for AntWind: a TD3 expert trained on device, then noisy rollouts.
 
     params = train_expert(env, ExpertSettings())          # TD3, the true wind as an input
-    env    = antwind_env(cfg)                             # AntWind + the expert as behaviour
+    env    = make_env_for(cfg)                            # zsbfm.data.sources: AntWind + the expert
     data   = load_or_collect_dataset(cfg, env)            # recorded once, cached on disk
 
 The expert is one TD3 agent (Fujimoto et al. 2018) for every train wind: its input is the
@@ -336,12 +336,6 @@ def load_or_train_expert(env, settings: ExpertSettings, data_dir: str = "dataset
     return _cached(path, build, _save_pickle, _load_pickle)
 
 
-def antwind_env(cfg, progress: bool = True):
-    """The AntWind env of `cfg` with its behaviour policy attached: the noisy TD3 expert
-    (data_policy="expert", trained or read from the cache) or uniform actions ("random")."""
-    from zsbfm.envs.antwind import AntWind
-
-    return with_expert(AntWind(episode_len=cfg.episode_len), cfg, progress)
 
 
 def with_expert(env, cfg, progress: bool = True):
