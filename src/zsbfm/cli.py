@@ -109,15 +109,13 @@ def collect(env: str = "fourrooms", n_train: int = 0, episodes_per_layout: int =
     from zsbfm.data import collect as collect_data
     from zsbfm.data import save_dataset
     from zsbfm.data.sources import make_env_for, shared_dataset
-    from zsbfm.envs import env_spec
 
-    spec = env_spec(env)  # a one-line error naming the known envs
     cfg = Config.preset(env, seed=seed, **({"n_train_layouts": n_train} if n_train else {}),
                         **({"episodes_per_layout": episodes_per_layout} if episodes_per_layout else {}))
     t = time.time()
     e = make_env_for(cfg)  # with its behaviour expert when the env's data comes from one
-    if spec.shares_data:
-        ds = shared_dataset(cfg, e)
+    ds = shared_dataset(cfg, e)  # None unless the env's data is one dataset for every seed
+    if ds is not None:
         print(f"{env} dataset: {ds.num_transitions} transitions ready in {time.time() - t:.0f}s "
               f"(cached under {cfg.data_dir}/, where `train --env {env}` reads it)")
         return

@@ -179,12 +179,12 @@ def plot_value_maps(run, path, seed: int = 0, goal_index: int = 0):
         return None  # value maps are drawn on grids (every cell a state), for agents with Q-values
     params = run.seed_params(seed)
     # one compiled program for both panels (eagerly, every op would compile on its own)
-    vmap_fn = jax.jit(lambda params, ctx, goal, key: value_map(agent, env, params, ctx, goal, key))
+    value_map_fn = jax.jit(lambda params, ctx, goal, key: value_map(agent, env, params, ctx, goal, key))
     panels = []
     for split in ("train", "test"):
         ctx = index_contexts(env.contexts(split), 0)
         goal = env.eval_goals(ctx)[goal_index]
-        v, a = vmap_fn(params, ctx, goal, jax.random.PRNGKey(0))
+        v, a = value_map_fn(params, ctx, goal, jax.random.PRNGKey(0))
         panels.append(dict(walls=np.asarray(ctx.walls), values=np.asarray(v), actions=np.asarray(a),
                            start=tuple(np.asarray(env.eval_start(ctx)).astype(int)),
                            goals=[tuple(np.asarray(goal).astype(int))],

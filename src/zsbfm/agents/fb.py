@@ -21,7 +21,6 @@ shared by every flavour and by the continuous-action variant.
 from __future__ import annotations
 
 import dataclasses
-import math
 from typing import Any
 
 import jax
