@@ -162,20 +162,3 @@ def test_cli_train_runs(tmp_path, capsys):
     with pytest.raises(SystemExit) as e:
         main(["train", "--env", "humanoid"])
     assert e.value.code == 2
-
-
-def test_xla_cpu_flags_appended_unless_the_user_set_them(monkeypatch):
-    """zsbfm.xla_cpu.apply appends its flags to XLA_FLAGS, keeping what was there, and
-    leaves a flag the user set alone (the user's value wins)."""
-    from zsbfm import xla_cpu
-
-    monkeypatch.delenv("XLA_FLAGS", raising=False)
-    xla_cpu.apply()
-    assert os.environ["XLA_FLAGS"].split() == list(xla_cpu.FLAGS)
-    monkeypatch.setenv("XLA_FLAGS", "--xla_backend_optimization_level=0")
-    xla_cpu.apply()
-    assert os.environ["XLA_FLAGS"].split() == ["--xla_backend_optimization_level=0", *xla_cpu.FLAGS]
-    mine = f"--xla_backend_optimization_level=0 {xla_cpu.YNN_FLAG}=dot"
-    monkeypatch.setenv("XLA_FLAGS", mine)
-    xla_cpu.apply()
-    assert os.environ["XLA_FLAGS"] == mine
