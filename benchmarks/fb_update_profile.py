@@ -1,6 +1,7 @@
 """Where the CPU preset's FB update spends its time: updates/s and XLA's GFLOP per update
 of the Four-Rooms FB CPU preset with one of its levers switched back at a time, beside
-the f32 matmul peak measured in the same run (throughput.matmul_rates) (1 seed, FB phase).
+the f32 matmul peak measured in the same run (1 seed, FB phase; the peak is the best
+of `throughput.matmul_rates`).
 
     python benchmarks/fb_update_profile.py
 """

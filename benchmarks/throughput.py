@@ -180,5 +180,6 @@ def main():
         print(f"| {algo} {size} preset | {seeds} | {rate:,.1f} | {gflop:.2f} | {rate * gflop:,.0f} "
               f"| {rate * gflop / peak:.0%} |")
 
+
 if __name__ == "__main__":
     main()
