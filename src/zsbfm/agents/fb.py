@@ -33,7 +33,6 @@ from zsbfm.config import Config
 from zsbfm.data.samplers import Transitions, sample_states, sample_transitions
 from zsbfm.envs.base import Env
 from zsbfm.nets.fb import Actor, BackwardNet, TwinForward
-from zsbfm.ops.linalg import spd_inverse
 from zsbfm.ops.sphere import project_to_sphere, sample_sphere
 
 Array = jax.Array
@@ -116,15 +115,13 @@ def q_loss(F: Array, target_F: Array, B_next: Array, B_plus: Array, z: Array, ga
 
     with the implicit reward of z_i, r_i = B(s'_i)^T C^-1 z_i, C = E_rho[B B^T] [d, d] (the
     reward whose Q is F^T z when M = F^T B rho): from the s+ states B_plus [m, d], weighted
-    by rho [m] or uniformly; C^-1 by Newton-Schulz (`spd_inverse`, relative error of the
-    reward ~1e-3 or better). The target (reward and next Q) is stop-gradient. It weighs the
+    by rho [m] or uniformly. The target (reward and next Q) is stop-gradient. It weighs the
     one direction of F the policy reads (z) above the rest of the measure.
     F, target_F: [K, n, d]; B_next: [n, d]; z: [n, d]."""
     w = jnp.full(B_plus.shape[:1], 1.0 / B_plus.shape[0]) if rho is None else rho
     C = jnp.einsum("m,md,me->de", w, B_plus, B_plus)
     C = C + 1e-4 * jnp.trace(C) / C.shape[0] * jnp.eye(C.shape[0])  # never singular (m < d)
-    C_inv = spd_inverse(jax.lax.stop_gradient(C))  # matmuls, not a LAPACK call (ops/linalg.py)
-    reward = jnp.einsum("nd,nd->n", B_next, z @ C_inv)
+    reward = jnp.einsum("nd,nd->n", B_next, jnp.linalg.solve(C, z.T).T)
     next_q = jnp.min(jnp.einsum("knd,nd->kn", target_F, z), 0)
     target = jax.lax.stop_gradient(reward + gamma * next_q)
     q = jnp.einsum("knd,nd->kn", F, z)
