@@ -125,6 +125,18 @@ def matmul_rate(m, k, n, repeat=3, iters=200):
     return 2 * 2 * m * k * n * iters / timed(f, x, repeat=repeat) / 1e9
 
 
+def fb_phase_chunk(cfg):
+    """cfg's training chunk compiled once, for timing and profiling: (trainer, carry,
+    dataset, compiled, args), where compiled(*args) runs the last chunk of the run, an
+    FB-phase chunk (for belief algos: after the encoder phase), for all of cfg's seeds."""
+    tr = make_train(cfg)
+    carry = jax.jit(jax.vmap(tr.init))(seed_keys(cfg))
+    ds = jax.jit(jax.vmap(tr.collect_data))(carry)
+    args = (carry, ds, jnp.int32(cfg.num_chunks - 1), {})
+    compiled = jax.jit(jax.vmap(tr.run_chunk, in_axes=(0, 0, None, None))).lower(*args).compile()
+    return tr, carry, ds, compiled, args
+
+
 def updates(algo, seeds, steps=200, size="cpu", **overrides):
     """(updates/s over all seeds, GFLOP per update of one seed) of a preset's FB-phase chunk.
 
@@ -134,13 +146,8 @@ def updates(algo, seeds, steps=200, size="cpu", **overrides):
     cfg = zsbfm.Config.preset("fourrooms", algo, size, num_seeds=seeds, chunk_steps=steps, **overrides)
     if cfg.steps % steps or (algo in ("bfb", "rfb") and cfg.enc_steps % steps):
         cfg = cfg.replace(steps=cfg.steps // steps * steps, enc_steps=max(steps, cfg.enc_steps // steps * steps))
-    tr = make_train(cfg)
-    carry = jax.jit(jax.vmap(tr.init))(seed_keys(cfg))
-    ds = jax.jit(jax.vmap(tr.collect_data))(carry)
-    f = jax.jit(jax.vmap(tr.run_chunk, in_axes=(0, 0, None, None)))
-    # a chunk in the FB phase (for belief algos: after the encoder phase)
-    chunk = jnp.int32(cfg.num_chunks - 1)
-    rate = seeds * steps / timed(lambda c: f(c, ds, chunk, {}), carry, repeat=3)
+    tr, carry, ds, chunk, args = fb_phase_chunk(cfg)
+    rate = seeds * steps / timed(lambda: chunk(*args), repeat=3)
     cumulative = update_flops(tr, carry, ds, {})
     return rate, (cumulative(cfg.steps) - cumulative(cfg.steps - 1)) / 1e9  # an FB-phase update
 

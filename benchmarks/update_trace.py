@@ -17,13 +17,15 @@ import glob
 import gzip
 import json
 import re
+import sys
 import tempfile
 
 import jax
-import jax.numpy as jnp
 
 import zsbfm
-from zsbfm.train import make_train, seed_keys
+
+sys.path.insert(0, __file__.rsplit("/", 1)[0])
+from throughput import fb_phase_chunk  # noqa: E402
 
 
 def describe(hlo: str, name: str) -> str:
@@ -52,17 +54,13 @@ def main():
     n = a.updates
     # belief algos keep the preset's share of encoder steps, in whole chunks (Config.preset)
     cfg = zsbfm.Config.preset(a.env, a.algo, a.size, num_seeds=1, chunk_steps=n, steps=10 * n)
-    tr = make_train(cfg)
-    carry = jax.jit(jax.vmap(tr.init))(seed_keys(cfg))
-    ds = jax.jit(jax.vmap(tr.collect_data))(carry)
-    f = jax.jit(jax.vmap(tr.run_chunk, in_axes=(0, 0, None, None)))
-    chunk = jnp.int32(cfg.num_chunks - 1)  # an FB-phase chunk
+    chunk, args = fb_phase_chunk(cfg)[3:]
     for _ in range(2):
-        jax.block_until_ready(f(carry, ds, chunk, {}))
+        jax.block_until_ready(chunk(*args))
     out = tempfile.mkdtemp(prefix="zsbfm-trace-")
     with jax.profiler.trace(out, create_perfetto_trace=True):
-        jax.block_until_ready(f(carry, ds, chunk, {}))
-    hlo = f.lower(carry, ds, chunk, {}).compile().as_text()
+        jax.block_until_ready(chunk(*args))
+    hlo = chunk.as_text()
     events = json.load(gzip.open(glob.glob(out + "/**/*perfetto_trace.json.gz", recursive=True)[-1]))
     events = events["traceEvents"] if isinstance(events, dict) else events
     total, wall = collections.Counter(), 0.0
