@@ -130,3 +130,29 @@ def test_onehot_encoding_is_the_one_hots_of_x_and_y():
     cells = jnp.asarray([(x, y) for x in range(11) for y in range(11)], jnp.float32)
     xy = FBAgent(zsbfm.Config.preset("fourrooms", "fb"), env).obs_features(cells[13:14])
     np.testing.assert_array_equal(np.flatnonzero(np.asarray(xy[0])), [1, 11 + 2])   # (1, 2)
+
+
+_BLAS_PROBE = """
+import os, sys
+import jax.numpy as jnp
+import scipy.linalg  # loaded before zsbfm: threadpoolctl, not the variable, must limit it
+import zsbfm
+from threadpoolctl import threadpool_info
+jnp.linalg.solve(jnp.eye(4) + 1.0, jnp.ones(4)).block_until_ready()  # scipy's LAPACK
+print(os.environ["OPENBLAS_NUM_THREADS"], sorted({i["num_threads"] for i in threadpool_info() if i["internal_api"] == "openblas"}))
+"""
+
+
+def test_import_uses_one_openblas_thread_unless_the_user_set_one():
+    """The Q-loss's solve runs OpenBLAS inside XLA's threads: import zsbfm limits it to one
+    thread (zsbfm/blas_threads.py), and leaves a user's OPENBLAS_NUM_THREADS alone."""
+    import os
+    import subprocess
+    import sys
+
+    env = {k: v for k, v in os.environ.items() if k != "OPENBLAS_NUM_THREADS"}
+    out = subprocess.run([sys.executable, "-c", _BLAS_PROBE], env=env, capture_output=True, text=True, check=True)
+    assert out.stdout.split("\n")[-2] == "1 [1]"
+    out = subprocess.run([sys.executable, "-c", _BLAS_PROBE], env={**env, "OPENBLAS_NUM_THREADS": "2"},
+                         capture_output=True, text=True, check=True)
+    assert out.stdout.split("\n")[-2] == "2 [2]"

@@ -9,10 +9,14 @@ Public API:
     make_train(cfg)           the pure pieces of a run (train(key) etc.), for custom loops
 """
 
-from zsbfm.config import Config
-from zsbfm.envs import make_env
-from zsbfm.evaluate import evaluate
-from zsbfm.run import Run, load
-from zsbfm.train import make_train, train
+from zsbfm.blas_threads import limit_blas_threads
+
+limit_blas_threads()  # before anything loads scipy's LAPACK: see zsbfm/blas_threads.py
+
+from zsbfm.config import Config  # noqa: E402
+from zsbfm.envs import make_env  # noqa: E402
+from zsbfm.evaluate import evaluate  # noqa: E402
+from zsbfm.run import Run, load  # noqa: E402
+from zsbfm.train import make_train, train  # noqa: E402
 
 __all__ = ["Config", "Run", "make_env", "make_train", "train", "evaluate", "load"]
