@@ -145,7 +145,7 @@ print(os.environ["OPENBLAS_NUM_THREADS"], sorted({i["num_threads"] for i in thre
 
 def test_import_uses_one_openblas_thread_unless_the_user_set_one():
     """The Q-loss's solve runs OpenBLAS inside XLA's threads: import zsbfm limits it to one
-    thread (zsbfm/blas_threads.py), and leaves a user's OPENBLAS_NUM_THREADS alone."""
+    thread (zsbfm/cpu_tuning.py), and leaves a user's OPENBLAS_NUM_THREADS alone."""
     import os
     import subprocess
     import sys
@@ -156,3 +156,23 @@ def test_import_uses_one_openblas_thread_unless_the_user_set_one():
     out = subprocess.run([sys.executable, "-c", _BLAS_PROBE], env={**env, "OPENBLAS_NUM_THREADS": "2"},
                          capture_output=True, text=True, check=True)
     assert out.stdout.split("\n")[-2] == "2 [2]"
+
+
+def test_ynnpack_off_is_an_option_this_xla_accepts_and_keeps_the_maths(monkeypatch):
+    """zsbfm.cpu_tuning.compiler_options turns XLA's YNNPACK fusions off for training chunks
+    (not under the tests' optimisation level 0): this XLA must accept the option, and the
+    compiled update must compute what the default compile does."""
+    from zsbfm.cpu_tuning import YNN_OPTION, compiler_options
+
+    monkeypatch.setenv("XLA_FLAGS", "--xla_backend_optimization_level=0")
+    assert compiler_options() == {}
+    monkeypatch.setenv("XLA_FLAGS", "")
+    assert compiler_options() == {YNN_OPTION: ""}
+
+    k1, k2, k3 = jax.random.split(jax.random.PRNGKey(0), 3)
+    x, w1, w2 = (jax.random.normal(k, s) for k, s in zip((k1, k2, k3), ((256, 256), (256, 256), (256, 256))))
+    f = lambda x, w1, w2: jax.grad(lambda w: jnp.sum(jnp.tanh(x @ w) @ w2))(w1)
+    lowered = jax.jit(f).lower(x, w1, w2)
+    default = lowered.compile()(x, w1, w2)
+    off = lowered.compile(compiler_options={YNN_OPTION: ""})  # an unknown option or value raises
+    np.testing.assert_allclose(off(x, w1, w2), default, rtol=1e-4, atol=1e-4)

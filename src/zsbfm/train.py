@@ -36,6 +36,7 @@ from flax import struct
 
 from zsbfm.agents import make_agent
 from zsbfm.config import Config
+from zsbfm.cpu_tuning import compiler_options
 from zsbfm.data.collect import collect
 from zsbfm.data.samplers import DATA_AXIS
 from zsbfm.data.sources import shared_dataset
@@ -209,7 +210,8 @@ def chunk_function(trainer: Trainer, shard: jax.sharding.NamedSharding) -> Calla
     axis; carry donated and kept on `shard`; the chunk-mean metrics replicated (tiny; every
     process can read them). hp: {field: float32[rows]} ({} for a plain run)."""
     per_seed = jax.vmap(trainer.run_chunk, in_axes=(0, 0, None, 0), spmd_axis_name="seeds")
-    return jax.jit(on_mesh(per_seed, shard.mesh), donate_argnums=0, out_shardings=(shard, replicated(shard)))
+    return jax.jit(on_mesh(per_seed, shard.mesh), donate_argnums=0, out_shardings=(shard, replicated(shard)),
+                   compiler_options=compiler_options())
 
 
 def global_array(x, shard: jax.sharding.NamedSharding) -> jax.Array:
@@ -258,7 +260,7 @@ def update_flops(trainer: Trainer, carry, dataset, hp) -> Callable[[int], float]
         def one_update(c, ds, h):
             return trainer.agent_for(h).run_steps(c.agent_state, ds, c.key[None], jnp.int32(first_step))
 
-        cost = jax.jit(one_update).lower(*row).compile().cost_analysis()
+        cost = jax.jit(one_update, compiler_options=compiler_options()).lower(*row).compile().cost_analysis()
         cost = cost[0] if isinstance(cost, (list, tuple)) else cost
         return float(cost.get("flops", float("nan")))
 
