@@ -119,9 +119,21 @@ def test_learning_curve_logs_every_protocol_and_ends_at_the_results(tmp_path):
                                                                    for a in ("rfb", "oracle", "lap")])
 def test_evaluate_reproduces_the_run_results(tmp_path, algo):
     extra = dict(steps=20, enc_steps=10) if algo in ("bfb", "rfb") else dict(steps=20)
-    cfg = tiny_config(tmp_path, algo=algo, eval_protocols="official", name=f"ev-{algo}", **extra)
+    # fb: every protocol, scored at the end only (eval_every=0): the official one from the
+    # official scores, the others by their own rollouts
+    protocols = "all" if algo == "fb" else "official"
+    cfg = tiny_config(tmp_path, algo=algo, eval_protocols=protocols, name=f"ev-{algo}", **extra)
     run = zsbfm.train(cfg, progress=False)
     loaded = zsbfm.load(os.path.join(cfg.runs_dir, cfg.run_name))
     for split in ("train", "test"):
         again = np.asarray(zsbfm.evaluate(loaded, split=split), np.float32).mean((1, 2))
         np.testing.assert_allclose(again, run.results[split], atol=1e-6)
+        np.testing.assert_allclose(run.results["protocols"]["paper"][split], run.results[split], atol=1e-4)
+    if algo == "fb":
+        from zsbfm.evaluate import protocol_score
+
+        assert set(run.results["protocols"]) == {"paper", "dense", "random_start"}
+        for protocol in ("dense", "random_start"):
+            score, valid = zsbfm.evaluate(loaded, split="test", protocol=protocol)
+            np.testing.assert_allclose(np.asarray(protocol_score(score, valid)),
+                                       run.results["protocols"][protocol]["test"], atol=1e-4)
