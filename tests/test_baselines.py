@@ -13,7 +13,7 @@ from zsbfm.agents.sf import lstsq_z
 from zsbfm.data import collect
 from zsbfm.envs import GridContext
 from zsbfm.envs.gridworld import ACTION_DELTAS
-from tests.conftest import tiny_config
+from tests.conftest import jit_optimised, tiny_config
 
 
 def corridor_room():
@@ -43,8 +43,8 @@ def bfs_distances(walls, cells):
 
 
 def train_agent(agent, ds, steps, seed=1):
-    state = agent.init(jax.random.PRNGKey(seed))
-    run = jax.jit(lambda s, k: jax.lax.scan(lambda s, k: agent.update(s, ds, k), s, jax.random.split(k, steps)))
+    state = jax.jit(agent.init)(jax.random.PRNGKey(seed))
+    run = jit_optimised(lambda s, k: jax.lax.scan(lambda s, k: agent.update(s, ds, k), s, jax.random.split(k, steps)))
     state, metrics = run(state, jax.random.PRNGKey(seed + 1))
     return state, metrics
 

@@ -10,6 +10,7 @@ import zsbfm
 from zsbfm.agents import make_agent
 from zsbfm.nets.encoder import ContextEncoder
 from zsbfm.ops.vmf import householder_to, sample_vmf, sample_vmf_cosine
+from tests.conftest import jit_optimised
 
 
 def mean_cosine(d, kappa):
@@ -148,15 +149,16 @@ def test_short_encoder_pretraining_separates_fourrooms_layouts(contrast, enc_ste
                               enc_embed=32, enc_mlp=64, pred_hidden=(64, 64), d=16)
     env = zsbfm.make_env("fourrooms", n_train=n_layouts)
     agent = make_agent(cfg, env)
-    ds = collect(env, jax.random.PRNGKey(0), env.contexts("train"), cfg.episodes_per_layout)
-    state = agent.init(jax.random.PRNGKey(1))
-    pre = jax.jit(lambda s, k: jax.lax.scan(lambda s, k: agent.pretrain_step(s, ds, k), s,
-                                            jax.random.split(k, cfg.enc_steps)))
+    episodes = jax.jit(lambda k, n: collect(env, k, env.contexts("train"), n), static_argnums=1)
+    ds = episodes(jax.random.PRNGKey(0), cfg.episodes_per_layout)
+    state = jax.jit(agent.init)(jax.random.PRNGKey(1))
+    pre = jit_optimised(lambda s, k: jax.lax.scan(lambda s, k: agent.pretrain_step(s, ds, k), s,
+                                                  jax.random.split(k, cfg.enc_steps)))
     state, metrics = pre(state, jax.random.PRNGKey(2))
     assert metrics["enc_mse"][-50:].mean() < metrics["enc_mse"][:50].mean()
 
-    held_out = collect(env, jax.random.PRNGKey(3), env.contexts("train"), 25)
-    mu, _ = agent.encode(state.params.enc, held_out.obs[:, :-1], held_out.action, held_out.obs[:, 1:])
+    held_out = episodes(jax.random.PRNGKey(3), 25)
+    mu, _ = jax.jit(agent.encode)(state.params.enc, held_out.obs[:, :-1], held_out.action, held_out.obs[:, 1:])
     h, ids = np.asarray(mu), np.asarray(held_out.context_id)
     D = np.linalg.norm(h[:, None] - h[None], axis=-1)
     same, off = ids[:, None] == ids[None], ~np.eye(len(ids), dtype=bool)

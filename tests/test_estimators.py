@@ -13,6 +13,7 @@ from zsbfm.agents.fb import clip_by_global_norm, fb_loss_splus, ortho_loss_weigh
 from zsbfm.data import collect
 
 from test_fb import GAMMA, exact_successor_measure, tiny_grid
+from tests.conftest import jit_optimised
 
 
 def test_weighted_fb_loss_is_the_expectation_over_s_plus():
@@ -69,8 +70,8 @@ def test_learned_measure_matches_closed_form_with_independent_s_plus(splus):
                               f_hidden=(128,), b_hidden=(64,), batch_size=256, gamma=GAMMA,
                               lr=1e-3, target_policy="uniform", splus=splus, splus_batch=256)
     agent = FBAgent(cfg, env)
-    state = agent.init(jax.random.PRNGKey(1))
-    train = jax.jit(lambda s, k: agent.run_steps(s, ds, jax.random.split(k, 1000), 0))
+    state = jax.jit(agent.init)(jax.random.PRNGKey(1))
+    train = jit_optimised(lambda s, k: agent.run_steps(s, ds, jax.random.split(k, 1000), 0))
     state, _ = train(state, jax.random.PRNGKey(2))
     M = exact_successor_measure(cells, GAMMA)
     S = len(cells)

@@ -12,6 +12,7 @@ import zsbfm
 from zsbfm.data import collect
 from zsbfm.envs.pointmass import (ACCEL, DAMPING, DT, SUBSTEPS, UNIT, MazeContext, PointMass,
                                   fixed_mazes)
+from tests.conftest import jit_optimised
 
 
 def test_free_motion_matches_closed_form():
@@ -115,19 +116,25 @@ def test_actor_ascends_q_on_held_out_states():
                               f_pre_hidden=(64,), f_pre_out=64, f_hidden=(64,), b_hidden=(64,),
                               actor_hidden=(64, 64), batch_size=128)
     env = zsbfm.make_env("pointmass", n_train=4)
-    ds = collect(env, jax.random.PRNGKey(0), env.contexts("train"), 10)
+    ds = jax.jit(lambda k: collect(env, k, env.contexts("train"), 10))(jax.random.PRNGKey(0))
     agent = FBAgent(cfg, env)
-    state = agent.init(jax.random.PRNGKey(1))
-    run = jax.jit(lambda s, k: jax.lax.scan(lambda s, k: agent.update(s, ds, k), s, jax.random.split(k, 500)))
+    state = jax.jit(agent.init)(jax.random.PRNGKey(1))  # one compile, not one per op
+    run = jit_optimised(lambda s, k: jax.lax.scan(lambda s, k: agent.update(s, ds, k), s, jax.random.split(k, 500)))
     state, metrics = run(state, jax.random.PRNGKey(2))  # 0.99 of held-out states at 500 updates
     assert np.isfinite(np.asarray(metrics["actor_q"])).all()
-    held_out = collect(env, jax.random.PRNGKey(3), env.contexts("test"), 1).obs[:, ::10].reshape(-1, 2)
-    z = agent.backward(state.params.B, held_out[0])
-    task = Task(z=jnp.broadcast_to(z, (len(held_out), 16)), h=jnp.zeros((len(held_out), 0)))
-    q = lambda a: jnp.min(jnp.einsum("knd,nd->kn", agent.forward(state.params.F, held_out, task, a), task.z), 0)
-    q_pi = q(agent.act(state.params, held_out, task, None))
-    q_rand = jnp.stack([q(jax.random.uniform(k, (len(held_out), 2), minval=-1, maxval=1))
-                        for k in jax.random.split(jax.random.PRNGKey(4), 8)]).mean(0)
+    held_out = jax.jit(lambda k: collect(env, k, env.contexts("test"), 1))(jax.random.PRNGKey(3))
+    held_out = held_out.obs[:, ::10].reshape(-1, 2)
+
+    @jax.jit
+    def q_actor_and_random(params, held_out):
+        z = agent.backward(params.B, held_out[0])
+        task = Task(z=jnp.broadcast_to(z, (len(held_out), 16)), h=jnp.zeros((len(held_out), 0)))
+        q = lambda a: jnp.min(jnp.einsum("knd,nd->kn", agent.forward(params.F, held_out, task, a), task.z), 0)
+        q_rand = jnp.stack([q(jax.random.uniform(k, (len(held_out), 2), minval=-1, maxval=1))
+                            for k in jax.random.split(jax.random.PRNGKey(4), 8)]).mean(0)
+        return q(agent.act(params, held_out, task, None)), q_rand
+
+    q_pi, q_rand = q_actor_and_random(state.params, held_out)
     assert float(jnp.mean(q_pi > q_rand)) > 0.9, float(jnp.mean(q_pi > q_rand))
 
 
