@@ -240,9 +240,9 @@ def train_expert(env, settings: ExpertSettings, progress: bool = True):
 
     agent = TD3Expert(env, settings)
     st = jax.jit(agent.init)(jax.random.PRNGKey(settings.seed))
-    # XLA's default options, not zsbfm.cpu_tuning's: YNNPACK off bought the TD3 loop nothing
-    # measurable (43-57 ms per iteration either way), and keeping them keeps the expert, and
-    # so the data, bit-identical to the one behind results/antwind.*
+    # XLA's default options, not zsbfm.cpu_tuning's: YNNPACK off buys the TD3 loop ~4%
+    # (benchmarks/expert_loop.py: 45.3 vs 43.3 ms per iteration), and the defaults keep the
+    # expert, and so the data, those behind results/antwind.*
     chunk = jax.jit(agent.run_chunk, donate_argnums=0)
     bar = tqdm(total=settings.iters * settings.num_envs, disable=not progress,
                unit="step", unit_scale=True, desc="antwind expert (TD3)")
