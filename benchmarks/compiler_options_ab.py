@@ -9,15 +9,10 @@ from __future__ import annotations
 
 import sys
 
-import jax
-import jax.numpy as jnp
-
 sys.path.insert(0, __file__.rsplit("/", 1)[0])
-from throughput import timed  # noqa: E402
+from throughput import fb_phase_chunk, timed, timing_config  # noqa: E402
 
-import zsbfm  # noqa: E402
 from zsbfm.cpu_tuning import YNN_OPTION  # noqa: E402
-from zsbfm.train import make_train, seed_keys  # noqa: E402
 
 STEPS = 200
 OPTIONS = {"default": {}, "ynnpack off": {YNN_OPTION: ""}}
@@ -26,18 +21,10 @@ OPTIONS = {"default": {}, "ynnpack off": {YNN_OPTION: ""}}
 def main(algos):
     print(f"| updates/s, fourrooms cpu preset, 1 seed | {' | '.join(OPTIONS)} | ratio |\n|---|---|---|---|")
     for algo in algos:
-        cfg = zsbfm.Config.preset("fourrooms", algo, "cpu", num_seeds=1, chunk_steps=STEPS)
-        cfg = cfg.replace(steps=cfg.steps // STEPS * STEPS, enc_steps=max(STEPS, cfg.enc_steps // STEPS * STEPS))
-        tr = make_train(cfg)
-        carry = jax.jit(jax.vmap(tr.init))(seed_keys(cfg))
-        ds = jax.jit(jax.vmap(tr.collect_data))(carry)
-        phases = {"FB phase": cfg.num_chunks - 1}
-        if algo in ("bfb", "rfb"):
-            phases["encoder phase"] = 0
+        cfg = timing_config(algo, 1, STEPS)
+        phases = {"FB phase": None} | ({"encoder phase": 0} if algo in ("bfb", "rfb") else {})
         for phase, chunk in phases.items():
-            args = (carry, ds, jnp.int32(chunk), {})
-            lowered = jax.jit(jax.vmap(tr.run_chunk, in_axes=(0, 0, None, None))).lower(*args)
-            compiled = {name: lowered.compile(compiler_options=opts) for name, opts in OPTIONS.items()}
+            compiled, args = fb_phase_chunk(cfg, chunk, OPTIONS)[3:]
             rate = dict.fromkeys(OPTIONS, 0.0)
             for _ in range(2):
                 for name, fn in compiled.items():

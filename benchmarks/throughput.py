@@ -133,18 +133,29 @@ def matmul_rate(m, k, n, repeat=3, iters=200):
     return 2 * 2 * m * k * n * iters / best_compiled(f, x, repeat=repeat) / 1e9
 
 
-def fb_phase_chunk(cfg):
-    """cfg's training chunk compiled once, for timing and profiling: (trainer, carry,
-    dataset, compiled, args), where compiled(*args) runs the last chunk of the run, an
-    FB-phase chunk (for belief algos: after the encoder phase), for all of cfg's seeds."""
+def timing_config(algo, seeds, steps=200, size="cpu", **overrides):
+    """The Four-Rooms preset of `algo` cut into chunks of `steps` updates (its steps and
+    encoder steps rounded down to whole chunks), for timing one chunk."""
+    cfg = zsbfm.Config.preset("fourrooms", algo, size, num_seeds=seeds, chunk_steps=steps, **overrides)
+    if cfg.steps % steps or (algo in ("bfb", "rfb") and cfg.enc_steps % steps):
+        cfg = cfg.replace(steps=cfg.steps // steps * steps, enc_steps=max(steps, cfg.enc_steps // steps * steps))
+    return cfg
+
+
+def fb_phase_chunk(cfg, chunk=None, options=None):
+    """cfg's training chunk compiled, for timing and profiling: (trainer, carry, dataset,
+    compiled, args), where compiled[name](*args) runs chunk `chunk` (default: the last, an
+    FB-phase chunk; for belief algos 0 is an encoder-phase chunk) for all of cfg's seeds,
+    compiled with each of `options` ({name: XLA options}; default: the options zsbfm.train
+    compiles its chunks with, zsbfm/cpu_tuning.py, alone, and `compiled` is that one)."""
     tr = make_train(cfg)
     carry = jax.jit(jax.vmap(tr.init))(seed_keys(cfg))
     ds = jax.jit(jax.vmap(tr.collect_data))(carry)
-    args = (carry, ds, jnp.int32(cfg.num_chunks - 1), {})
-    # the XLA options zsbfm.train compiles its chunks with (zsbfm/cpu_tuning.py)
-    compiled = jax.jit(jax.vmap(tr.run_chunk, in_axes=(0, 0, None, None)),
-                       compiler_options=compiler_options()).lower(*args).compile()
-    return tr, carry, ds, compiled, args
+    args = (carry, ds, jnp.int32(cfg.num_chunks - 1 if chunk is None else chunk), {})
+    lowered = jax.jit(jax.vmap(tr.run_chunk, in_axes=(0, 0, None, None))).lower(*args)
+    if options is None:
+        return tr, carry, ds, lowered.compile(compiler_options=compiler_options()), args
+    return tr, carry, ds, {name: lowered.compile(compiler_options=o) for name, o in options.items()}, args
 
 
 def updates(algo, seeds, steps=200, size="cpu", **overrides):
@@ -153,9 +164,7 @@ def updates(algo, seeds, steps=200, size="cpu", **overrides):
     GFLOP per update: XLA's cost analysis of one compiled update (zsbfm.train.update_flops)."""
     from zsbfm.train import update_flops
 
-    cfg = zsbfm.Config.preset("fourrooms", algo, size, num_seeds=seeds, chunk_steps=steps, **overrides)
-    if cfg.steps % steps or (algo in ("bfb", "rfb") and cfg.enc_steps % steps):
-        cfg = cfg.replace(steps=cfg.steps // steps * steps, enc_steps=max(steps, cfg.enc_steps // steps * steps))
+    cfg = timing_config(algo, seeds, steps, size, **overrides)
     tr, carry, ds, chunk, args = fb_phase_chunk(cfg)
     rate = seeds * steps / timed(lambda: chunk(*args), repeat=3)
     cumulative = update_flops(tr, carry, ds, {})

@@ -85,13 +85,19 @@ def eval_key(seed_key: jax.Array) -> jax.Array:
     return jax.random.fold_in(seed_key, 1)
 
 
+def run_protocols(cfg: Config, env) -> tuple[str, ...]:
+    """The protocols a run of cfg scores, the official one first: all of the env's
+    (eval_protocols="all") or the official one alone."""
+    return protocols_of(env) if cfg.eval_protocols == "all" else protocols_of(env)[:1]
+
+
 def make_train(cfg: Config, progress: bool = False) -> Trainer:
     env = make_env_for(cfg)  # antwind: with its behaviour expert (trained once, then cached)
     agent = make_agent(cfg, env)
     shared = shared_dataset(cfg, env, progress)
     train_ctx, test_ctx = env.contexts("train"), env.contexts("test")
     train_goals, test_goals = default_goals(env, train_ctx), default_goals(env, test_ctx)
-    protocols = protocols_of(env) if cfg.eval_protocols == "all" else protocols_of(env)[:1]
+    protocols = run_protocols(cfg, env)
 
     def agent_for(hp):
         return agent if not hp else make_agent(cfg.with_traced(hp), env)
@@ -454,13 +460,13 @@ def final_results(trainer: Trainer, loop: LoopResult) -> dict:
     else:
         # the official protocol's score is the mean of `success` (same keys, same tasks): only
         # the other protocols need rollouts (none for eval_protocols="official" or antwind)
-        official = protocols_of(trainer.env)[0]
+        official, *others = run_protocols(trainer.cfg, trainer.env)
         scores = {f"{split}/{official}": np.round(np.asarray(success[split], np.float32).mean((1, 2)), 4).tolist()
                   for split in ("train", "test")}
-        if trainer.cfg.eval_protocols == "all" and len(protocols_of(trainer.env)) > 1:
-            others = jax.jit(jax.vmap(functools.partial(trainer.evaluate_protocols, skip_official=True)),
-                             out_shardings=replicated(loop.shard))
-            more = jax.device_get(others(loop.carry, loop.dataset, loop.keys, loop.hp))
+        if others:
+            eval_others = jax.jit(jax.vmap(functools.partial(trainer.evaluate_protocols, skip_official=True)),
+                                  out_shardings=replicated(loop.shard))
+            more = jax.device_get(eval_others(loop.carry, loop.dataset, loop.keys, loop.hp))
             scores.update({k: np.round(np.asarray(v), 4).tolist() for k, v in more.items()})
     protocols: dict = {}
     for k, v in scores.items():
