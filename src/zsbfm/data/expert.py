@@ -159,13 +159,15 @@ class TD3Expert:
         actor = self.actor_net.init(k_a, x)
         critic = self.critic_net.init(k_c, x, a)
         cap = s.iters * s.num_envs
+        # every leaf strongly typed, as run_chunk returns it: a weak-typed leaf here made the
+        # second chunk retrace and recompile (~30 s of MJX compile)
         buffer = {"x": jnp.zeros((cap, self.env.obs_dim + 2)), "a": jnp.zeros((cap, self.env.action_dim)),
                   "r": jnp.zeros((cap,)), "x2": jnp.zeros((cap, self.env.obs_dim + 2))}
         return TD3State(actor=actor, critic=critic, actor_target=actor, critic_target=critic,
                         actor_opt=self.opt.init(actor), critic_opt=self.opt.init(critic),
                         env_state=self._reset_envs(k_env), buffer=buffer, size=jnp.zeros((), jnp.int32),
                         iteration=jnp.zeros((), jnp.int32), ep_return=jnp.zeros((s.num_envs,)),
-                        last_return=jnp.full((), jnp.nan), key=k_loop)
+                        last_return=jnp.full((), jnp.nan, jnp.float32), key=k_loop)
 
     def act(self, actor, obs, angle):
         return self.actor_net.apply(actor, _wind_obs(self.env, obs, angle))
