@@ -3,8 +3,10 @@
 per wind, the keys of experiments/antwind_expert.py), with the training time so far.
 
     python experiments/antwind_expert_curve.py [--every 100000] [--set hidden="(128, 128)" num_timesteps=600000]
+        [--save DIR]
 
---set overrides ExpertSettings fields (Python literals). Prints one line per point.
+--set overrides ExpertSettings fields (Python literals). Prints one line per point; --save
+writes the actor at each point as DIR/actor-<env steps>.npz (zsbfm.data.expert.save_expert_npz).
 """
 
 from __future__ import annotations
@@ -12,19 +14,21 @@ from __future__ import annotations
 import argparse
 import ast
 import dataclasses
+import os
 import time
 
 import jax
 
 import zsbfm
 from zsbfm.data.collect import rollout
-from zsbfm.data.expert import ExpertBehaviour, ExpertSettings, TD3Expert
+from zsbfm.data.expert import ExpertBehaviour, ExpertSettings, TD3Expert, save_expert_npz
 
 
 def main():
     p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--every", type=int, default=100_000)
     p.add_argument("--set", nargs="*", default=[], help="ExpertSettings overrides, field=value")
+    p.add_argument("--save", default="", help="directory for the actor's params at each point")
     a = p.parse_args()
     fields = {f.name for f in dataclasses.fields(ExpertSettings)}
     over = {}
@@ -60,6 +64,9 @@ def main():
         done = (i + 1) * per_chunk
         if done // a.every != (done - per_chunk) // a.every or i == s.num_chunks - 1:
             train, test = (float(r) for r in returns(st.actor))
+            if a.save:
+                os.makedirs(a.save, exist_ok=True)
+                save_expert_npz(os.path.join(a.save, f"actor-{done}.npz"), st.actor)
             print(f"{done:>9,} env steps  {seconds:6.0f} s training  return train {train:6.1f}  test {test:6.1f}"
                   f"  (last training episode, with exploration noise: {float(st.last_return):.1f})", flush=True)
 

@@ -128,6 +128,8 @@ def test_antwind_config_errors():
         Config.preset("antwind", n_train_layouts=20)
     with pytest.raises(ValueError, match="data_policy='sac'"):
         Config.preset("antwind", data_policy="sac")
+    with pytest.raises(ValueError, match="expert_source='download'.*'shipped', 'train'"):
+        Config.preset("antwind", expert_source="download")
     with pytest.raises(ValueError, match="obs_encoding"):
         Config.preset("antwind", obs_encoding="onehot")
     cfg = Config.preset("antwind")
@@ -153,22 +155,8 @@ def test_antwind_rfb_end_to_end(tmp_path):
     train, test = np.asarray(run.results["train"]), np.asarray(run.results["test"])
     assert train.shape == test.shape == (2,) and np.all(np.isfinite(train)) and np.all(np.isfinite(test))
     assert train[0] != train[1]  # vmapped seeds are different runs
-    cached = sorted((tmp_path / "data" / "antwind").iterdir())
-    assert [p.suffix for p in cached] == [".npz", ".pkl"]  # the dataset and the expert, cached
+    cached = sorted(p.name.split("-")[0] for p in (tmp_path / "data" / "antwind").iterdir())
+    assert cached == ["data", "expert"]  # the dataset and the expert (trained here: no shipped one), cached
     ds = load_or_collect_dataset(cfg, make_env_for(cfg, progress=False), progress=False)  # read back
     assert ds.obs.shape == (15 * 2, 257, 27) and ds.action.shape == (15 * 2, 256, 8)
 
-
-def test_expert_chunk_keeps_its_state_types(env):
-    """The TD3 expert's chunk returns its state with the avals it was given (dtype, shape and
-    weak type of every leaf), so train_expert's loop compiles the chunk once, not twice:
-    a weak-typed `last_return` from init once cost a second ~30 s MJX compile. Traced with
-    eval_shape (no compile)."""
-    from zsbfm.data.expert import ExpertSettings, TD3Expert
-
-    agent = TD3Expert(env, ExpertSettings(num_timesteps=64 * 2, chunk_iters=2, batch_size=8, hidden=(8,)))
-    st = jax.eval_shape(agent.init, jax.random.PRNGKey(0))
-    out = jax.eval_shape(agent.run_chunk, st)
-    leaves = lambda t: [(jax.tree_util.keystr(p), x.shape, x.dtype, x.weak_type)
-                        for p, x in jax.tree_util.tree_leaves_with_path(t)]
-    assert leaves(out) == leaves(st)

@@ -16,8 +16,16 @@ train winds x episodes: the expert's action plus Gaussian noise (sigma `expert_n
 clipped to [-1, 1]. The same noisy expert gives the reward-free context episodes at
 evaluation time, in train and held-out winds: the agents see its transitions, never the
 wind. `data_policy="random"` records uniformly random actions instead (and random context
-episodes). Both the expert's params and the dataset are cached under
-`<data_dir>/antwind/` by a hash of everything they depend on (`make data ENV=antwind`).
+episodes).
+
+The preset's expert (seed 0) is trained once and shipped with zsbfm (`experts/`, its actor's
+parameters, 300 kB): training it takes ~13 minutes of a 2-core CPU, and shipping it gives
+every machine the same expert (training it elsewhere rounds differently, so it makes
+different data). `expert_source="train"` trains it here instead, as does any other expert
+setting. Experts trained here and datasets are cached under `<data_dir>/antwind/` by a hash
+of everything they depend on (`make data ENV=antwind`). To ship another expert: train it
+here (`expert_source="train"`), then copy `<data_dir>/antwind/expert-<key>.npz` to
+`experts/antwind-expert-<key>.npz`; a test checks that the preset's settings have one.
 """
 
 from __future__ import annotations
@@ -26,7 +34,6 @@ import dataclasses
 import hashlib
 import json
 import os
-import pickle
 import tempfile
 import time
 from typing import Any, Sequence
@@ -315,21 +322,56 @@ def _cached(path: str, build, save, load):
     return value if value is not None else load(path)
 
 
-def _save_pickle(path, params):
-    with open(path, "wb") as f:
-        pickle.dump(jax.tree_util.tree_map(np.asarray, params), f)
+# --- the expert shipped with zsbfm ----------------------------------------------------------
+
+SHIPPED_DIR = os.path.join(os.path.dirname(__file__), "experts")
 
 
-def _load_pickle(path):
-    with open(path, "rb") as f:
-        return pickle.load(f)
+def expert_key(env, settings: ExpertSettings) -> str:
+    """The hash naming an expert: its settings and the environment's constants."""
+    return _digest(dict(settings=dataclasses.asdict(settings), env=_env_spec(env)))
 
 
-def load_or_train_expert(env, settings: ExpertSettings, data_dir: str = "datasets", progress: bool = True):
-    """The expert's actor params from data_dir/antwind/expert-<hash>.pkl (hash of the
-    settings and the environment's constants), trained and saved first if missing."""
-    key = _digest(dict(settings=dataclasses.asdict(settings), env=_env_spec(env)))
-    path = os.path.join(data_dir, "antwind", f"expert-{key}.pkl")
+def shipped_expert_path(env, settings: ExpertSettings) -> str | None:
+    """The expert shipped with zsbfm for exactly these settings and env constants, or None."""
+    path = os.path.join(SHIPPED_DIR, f"antwind-expert-{expert_key(env, settings)}.npz")
+    return path if os.path.exists(path) else None
+
+
+def save_expert_npz(path: str, params) -> None:
+    """An actor's params (shipped or cached) as an .npz of its leaves, keyed by their
+    path in the params ('params/MLP_0/Dense_0/kernel', ...)."""
+    from flax import traverse_util
+
+    flat = traverse_util.flatten_dict(jax.device_get(params), sep="/")
+    np.savez(path, **{k: np.asarray(v) for k, v in flat.items()})
+
+
+def load_expert_npz(path: str):
+    """The params save_expert_npz wrote (numpy arrays, nested as flax's)."""
+    from flax import traverse_util
+
+    with np.load(path) as f:
+        return traverse_util.unflatten_dict({k: f[k] for k in f.files}, sep="/")
+
+
+def expert_origin(env, settings: ExpertSettings, source: str = "shipped") -> str:
+    """"shipped" if load_or_train_expert returns the expert shipped with zsbfm, else "trained"."""
+    return "shipped" if source == "shipped" and shipped_expert_path(env, settings) else "trained"
+
+
+def load_or_train_expert(env, settings: ExpertSettings, data_dir: str = "datasets", progress: bool = True,
+                         source: str = "shipped"):
+    """The expert's actor params: the one shipped with zsbfm for these settings (source=
+    "shipped" and one exists), else data_dir/antwind/expert-<hash>.npz (`expert_key`), trained
+    here and saved first if missing."""
+    if expert_origin(env, settings, source) == "shipped":
+        path = shipped_expert_path(env, settings)
+        if progress:
+            print(f"antwind expert: the one shipped with zsbfm ({os.path.relpath(path)}); "
+                  "--set expert_source=train trains it here instead")
+        return load_expert_npz(path)
+    path = os.path.join(data_dir, "antwind", f"expert-{expert_key(env, settings)}.npz")
 
     def build():
         t = time.time()
@@ -338,30 +380,36 @@ def load_or_train_expert(env, settings: ExpertSettings, data_dir: str = "dataset
             print(f"expert trained in {time.time() - t:.0f}s -> {path}")
         return params
 
-    return _cached(path, build, _save_pickle, _load_pickle)
-
-
+    return _cached(path, build, save_expert_npz, load_expert_npz)
 
 
 def with_expert(env, cfg, progress: bool = True):
     """`env` with its behaviour policy attached: the noisy TD3 expert (data_policy="expert",
-    trained or read from the cache) or unchanged, uniform actions ("random")."""
+    shipped, read from the cache or trained) or unchanged, uniform actions ("random")."""
     if cfg.data_policy == "random":
         return env
     settings = expert_settings(cfg)
-    params = load_or_train_expert(env, settings, cfg.data_dir, progress)
+    params = load_or_train_expert(env, settings, cfg.data_dir, progress, cfg.expert_source)
     return dataclasses.replace(env, behaviour=ExpertBehaviour(env, settings, cfg.expert_noise, params))
+
+
+def dataset_path(cfg, env) -> str:
+    """data_dir/antwind/data-<hash>.npz: the hash of everything cfg's dataset depends on."""
+    expert = cfg.data_policy == "expert"
+    spec = dict(policy=cfg.data_policy, episodes=cfg.episodes_per_layout, seed=cfg.seed,
+                noise=cfg.expert_noise, env=_env_spec(env),
+                expert=dataclasses.asdict(expert_settings(cfg)) if expert else None,
+                # a shipped expert and one trained here may differ in rounding, so their data too
+                expert_origin=expert_origin(env, expert_settings(cfg), cfg.expert_source) if expert else None)
+    return os.path.join(cfg.data_dir, "antwind", f"data-{_digest(spec)}.npz")
 
 
 def load_or_collect_dataset(cfg, env, progress: bool = True) -> Dataset:
     """The behaviour dataset of `cfg` (all train winds x episodes_per_layout episodes) from
-    data_dir/antwind/data-<hash>.npz, recorded (on device, vmapped) and saved first if missing."""
+    `dataset_path`, recorded (on device, vmapped) and saved first if missing."""
     from zsbfm.data.collect import collect
 
-    spec = dict(policy=cfg.data_policy, episodes=cfg.episodes_per_layout, seed=cfg.seed,
-                noise=cfg.expert_noise, env=_env_spec(env),
-                expert=dataclasses.asdict(expert_settings(cfg)) if cfg.data_policy == "expert" else None)
-    path = os.path.join(cfg.data_dir, "antwind", f"data-{_digest(spec)}.npz")
+    path = dataset_path(cfg, env)
 
     def build():
         t = time.time()
