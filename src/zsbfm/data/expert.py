@@ -250,8 +250,9 @@ def train_expert(env, settings: ExpertSettings, progress: bool = True):
     agent = TD3Expert(env, settings)
     st = jax.jit(agent.init)(jax.random.PRNGKey(settings.seed))
     # XLA's default options, not zsbfm.cpu_tuning's: YNNPACK off buys the TD3 loop ~4%
-    # (benchmarks/expert_loop.py: 45.3 vs 43.3 ms per iteration), and the defaults keep the
-    # expert, and so the data, those behind results/antwind.*
+    # (benchmarks/expert_loop.py: 45.3 vs 43.3 ms per iteration), and the shipped expert
+    # was trained with the defaults (so expert_source="train" remakes it on the machine
+    # that made it; compiled differently, it rounds differently and ends elsewhere)
     chunk = jax.jit(agent.run_chunk, donate_argnums=0)
     bar = tqdm(total=settings.iters * settings.num_envs, disable=not progress,
                unit="step", unit_scale=True, desc="antwind expert (TD3)")
