@@ -21,7 +21,7 @@ import jax
 import numpy as np
 
 from zsbfm.config import Config
-from zsbfm.data.collect import rollout
+from zsbfm.data.collect import behaviour_returns
 from zsbfm.data.sources import make_env_for
 
 
@@ -40,14 +40,8 @@ def main():
     for name, e in policies.items():
         row = {}
         for split in ("train", "test"):
-            ctxs = e.contexts(split)
-
-            def one(key, ctx, e=e):
-                return rollout(e, key, ctx, e.behaviour_policy(ctx), e.episode_len)[2].sum()
-
-            n = int(ctxs.angle.shape[0])
-            keys = jax.random.split(jax.random.PRNGKey(3), n * a.episodes).reshape(n, a.episodes, 2)
-            ret = jax.jit(jax.vmap(jax.vmap(one, in_axes=(0, None))))(keys, ctxs)
+            returns = jax.jit(lambda key, ctxs, e=e: behaviour_returns(e, key, ctxs, a.episodes))
+            ret = returns(jax.random.PRNGKey(3), e.contexts(split))   # [winds, episodes]
             row[split] = {"mean": float(np.mean(ret)), "std_over_winds": float(np.std(np.mean(ret, 1)))}
         out[name] = row
         print(f"{name:28s} train {row['train']['mean']:7.1f}  test {row['test']['mean']:7.1f}", flush=True)

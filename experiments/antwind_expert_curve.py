@@ -20,7 +20,7 @@ import time
 import jax
 
 import zsbfm
-from zsbfm.data.collect import rollout
+from zsbfm.data.collect import behaviour_returns
 from zsbfm.data.expert import ExpertBehaviour, ExpertSettings, TD3Expert, save_expert_npz
 
 
@@ -45,15 +45,9 @@ def main():
 
     @jax.jit
     def returns(params):
+        """Mean noise-free return on the train and the test winds (antwind_expert.py's keys)."""
         e = dataclasses.replace(env, behaviour=ExpertBehaviour(env, s, 0.0, params))
-        out = []
-        for split in ("train", "test"):
-            ctxs = e.contexts(split)
-            n = int(ctxs.angle.shape[0])
-            keys = jax.random.split(jax.random.PRNGKey(3), n * 4).reshape(n, 4, 2)
-            one = lambda k, c: rollout(e, k, c, e.behaviour_policy(c), env.episode_len)[2].sum()
-            out.append(jax.vmap(jax.vmap(one, in_axes=(0, None)))(keys, ctxs).mean())
-        return out
+        return [behaviour_returns(e, jax.random.PRNGKey(3), e.contexts(split), 4).mean() for split in ("train", "test")]
 
     seconds, per_chunk = 0.0, s.chunk * s.num_envs
     print(f"ExpertSettings overrides {over}")

@@ -40,6 +40,15 @@ Array = jax.Array
 
 # --- Shared maths ------------------------------------------------------------------------
 
+def heads_times(F: Array, B: Array) -> Array:
+    """M_k = F_k B^T for every head: F [K, n, d], B [m, d] -> [K, n, m], as one [K n, d] x
+    [d, m] product. The same sums as einsum("knd,md->knm"), but B's gradient then contracts
+    the one flat K n axis, which XLA's CPU dot reads in place, where the einsum's (K, n) pair
+    had it first copy the [K, n, m] gradient into a transposed layout."""
+    K, n, d = F.shape
+    return (F.reshape(K * n, d) @ B.T).reshape(K, n, B.shape[0])
+
+
 def fb_loss(F: Array, B: Array, target_M: Array, gamma: float) -> tuple[Array, dict]:
     """The FB temporal-difference loss, summed over the twin heads.
 
@@ -54,7 +63,7 @@ def fb_loss(F: Array, B: Array, target_M: Array, gamma: float) -> tuple[Array, d
     """
     n = B.shape[0]
     target_M = jax.lax.stop_gradient(target_M)
-    M = jnp.einsum("knd,md->knm", F, B)
+    M = heads_times(F, B)
     off = 1.0 - jnp.eye(n)
     offdiag = 0.5 * jnp.sum((M - gamma * target_M) ** 2 * off, axis=(1, 2)) / (n * (n - 1))
     diag = -jnp.mean(jnp.diagonal(M, axis1=1, axis2=2), axis=1)
@@ -80,7 +89,7 @@ def fb_loss_splus(F: Array, B_next: Array, B_plus: Array, target_M: Array, gamma
     Every (i, j) pair is independent here, so no diagonal is excluded.
     """
     target_M = jax.lax.stop_gradient(target_M)
-    M = jnp.einsum("knd,md->knm", F, B_plus)
+    M = heads_times(F, B_plus)
     w = jnp.full(B_plus.shape[:1], 1.0 / B_plus.shape[0]) if rho is None else rho
     offdiag = 0.5 * jnp.einsum("knm,m->k", (M - gamma * target_M) ** 2, w) / F.shape[1]
     M_diag = jnp.einsum("knd,nd->kn", F, B_next)

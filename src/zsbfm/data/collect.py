@@ -49,6 +49,17 @@ def behaviour_rollout(env: Env, key: jax.Array, ctx, length: int):
     return rollout(env, key, ctx, uniform_policy(env), length)
 
 
+def behaviour_returns(env: Env, key: jax.Array, contexts, episodes: int) -> jax.Array:
+    """Undiscounted returns [n_contexts, episodes] of the behaviour policy (`behaviour_rollout`;
+    antwind: the expert, with its noise), one env.episode_len-step episode per (context, key);
+    the keys are split from `key` (jittable; the reference returns of
+    experiments/antwind_expert*.py)."""
+    n = num_contexts(contexts)
+    keys = jax.random.split(key, n * episodes).reshape(n, episodes, -1)
+    one = lambda k, ctx: behaviour_rollout(env, k, ctx, env.episode_len)[2].sum()
+    return jax.vmap(jax.vmap(one, in_axes=(0, None)))(keys, contexts)
+
+
 def collect(env: Env, key: jax.Array, contexts, episodes_per_context: int, policy=None) -> Dataset:
     """Collect `episodes_per_context` reward-free episodes in every context (jittable).
 
