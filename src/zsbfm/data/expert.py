@@ -366,12 +366,12 @@ def load_or_train_expert(env, settings: ExpertSettings, data_dir: str = "dataset
     """The expert's actor params: the one shipped with zsbfm for these settings (source=
     "shipped" and one exists), else data_dir/antwind/expert-<hash>.npz (`expert_key`), trained
     here and saved first if missing."""
-    if expert_origin(env, settings, source) == "shipped":
-        path = shipped_expert_path(env, settings)
+    shipped = shipped_expert_path(env, settings) if source == "shipped" else None
+    if shipped:
         if progress:
-            print(f"antwind expert: the one shipped with zsbfm ({os.path.relpath(path)}); "
+            print(f"antwind expert: the one shipped with zsbfm ({os.path.relpath(shipped)}); "
                   "--set expert_source=train trains it here instead")
-        return load_expert_npz(path)
+        return load_expert_npz(shipped)
     path = os.path.join(data_dir, "antwind", f"expert-{expert_key(env, settings)}.npz")
 
     def build():
