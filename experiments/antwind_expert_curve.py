@@ -1,6 +1,7 @@
-"""The AntWind TD3 expert's learning curve: train it (zsbfm.data.expert, not cached) and every
-`--every` env steps score the noise-free policy on the train and held-out winds (4 episodes
-per wind, the keys of experiments/antwind_expert.py), with the training time so far.
+"""The AntWind TD3 expert's learning curve: train it (zsbfm.data.expert.train_expert, not
+cached) and every `--every` env steps score the noise-free policy on the train and held-out
+winds (4 episodes per wind, the keys of experiments/antwind_expert.py), with the training
+time so far.
 
     python experiments/antwind_expert_curve.py [--every 100000] [--set hidden="(128, 128)" num_timesteps=600000]
         [--save DIR]
@@ -21,7 +22,7 @@ import jax
 
 import zsbfm
 from zsbfm.data.collect import behaviour_returns
-from zsbfm.data.expert import ExpertBehaviour, ExpertSettings, TD3Expert, save_expert_npz
+from zsbfm.data.expert import ExpertBehaviour, ExpertSettings, save_expert_npz, train_expert
 
 
 def main():
@@ -39,9 +40,6 @@ def main():
         over[k] = ast.literal_eval(v)
     s = ExpertSettings(**over)
     env = zsbfm.make_env("antwind")
-    agent = TD3Expert(env, s)
-    st = jax.jit(agent.init)(jax.random.PRNGKey(s.seed))
-    chunk = jax.jit(agent.run_chunk, donate_argnums=0)  # as train_expert compiles it
 
     @jax.jit
     def returns(params):
@@ -49,21 +47,23 @@ def main():
         e = dataclasses.replace(env, behaviour=ExpertBehaviour(env, s, 0.0, params))
         return [behaviour_returns(e, jax.random.PRNGKey(3), e.contexts(split), 4).mean() for split in ("train", "test")]
 
-    seconds, per_chunk = 0.0, s.chunk * s.num_envs
-    print(f"ExpertSettings overrides {over}")
-    for i in range(s.num_chunks):
-        t = time.perf_counter()
-        st = jax.block_until_ready(chunk(st))
-        seconds += time.perf_counter() - t
-        done = (i + 1) * per_chunk
-        if done // a.every != (done - per_chunk) // a.every or i == s.num_chunks - 1:
+    per_chunk, clock = s.chunk * s.num_envs, {"training": 0.0, "since": time.perf_counter()}
+
+    def point(done, st):
+        """After each chunk (train_expert's callback): score, save and print at every --every."""
+        clock["training"] += time.perf_counter() - clock["since"]  # the chunk, its sync included
+        if done // a.every != (done - per_chunk) // a.every or done == s.iters * s.num_envs:
             train, test = (float(r) for r in returns(st.actor))
             if a.save:
                 os.makedirs(a.save, exist_ok=True)
                 save_expert_npz(os.path.join(a.save, f"actor-{done}.npz"), st.actor)
-            print(f"{done:>9,} env steps  {seconds:6.0f} s training  return train {train:6.1f}  test {test:6.1f}"
-                  f"  (last training episode, with exploration noise: {float(st.last_return):.1f})", flush=True)
+            print(f"{done:>9,} env steps  {clock['training']:6.0f} s training  return train {train:6.1f}  "
+                  f"test {test:6.1f}  (last training episode, with exploration noise: "
+                  f"{float(st.last_return):.1f})", flush=True)
+        clock["since"] = time.perf_counter()
 
+    print(f"ExpertSettings overrides {over}")
+    train_expert(env, s, progress=False, callback=point)
 
 if __name__ == "__main__":
     main()

@@ -242,9 +242,11 @@ class TD3Expert:
         return st
 
 
-def train_expert(env, settings: ExpertSettings, progress: bool = True):
+def train_expert(env, settings: ExpertSettings, progress: bool = True, callback=None):
     """Train the wind-conditioned TD3 expert; returns its actor params. Shows a progress bar
-    with the mean return of the latest finished episodes (exploration noise included)."""
+    with the mean return of the latest finished episodes (exploration noise included).
+    callback(env_steps, state), if given, runs on the host after every chunk (the state is
+    donated to the next chunk: copy what it keeps)."""
     from tqdm.auto import tqdm
 
     agent = TD3Expert(env, settings)
@@ -260,6 +262,8 @@ def train_expert(env, settings: ExpertSettings, progress: bool = True):
         st = chunk(st)
         bar.update(settings.chunk * settings.num_envs)
         bar.set_postfix(episode_return=f"{float(st.last_return):.1f}")
+        if callback is not None:
+            callback(int(st.size), st)
     bar.close()
     return jax.device_get(st.actor)
 
