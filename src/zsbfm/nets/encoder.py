@@ -16,7 +16,7 @@ from typing import Sequence
 import flax.linen as nn
 import jax.numpy as jnp
 
-from zsbfm.nets.mlp import MLP
+from zsbfm.nets.mlp import MLP, Dense
 
 
 class EncoderBlock(nn.Module):
@@ -34,7 +34,7 @@ class EncoderBlock(nn.Module):
                                             param_dtype=jnp.float32)(y, y, mask=attn_mask)
         x = x + y
         y = nn.LayerNorm(dtype=jnp.float32)(x)
-        y = nn.Dense(self.embed)(nn.relu(nn.Dense(self.mlp)(y)))
+        y = Dense(self.embed)(nn.relu(Dense(self.mlp)(y)))
         return x + y
 
 
@@ -49,14 +49,14 @@ class ContextEncoder(nn.Module):
 
     @nn.compact
     def __call__(self, tokens, mask):
-        x = nn.Dense(self.embed)(tokens.astype(jnp.float32))
+        x = Dense(self.embed)(tokens.astype(jnp.float32))
         for _ in range(self.layers):
             x = EncoderBlock(self.embed, self.heads, self.mlp)(x, mask)
         x = nn.LayerNorm()(x)
         w = mask.astype(jnp.float32)[..., None]
         pooled = jnp.sum(x * w, axis=-2) / jnp.maximum(jnp.sum(w, axis=-2), 1.0)
-        mu = nn.Dense(self.h_dim, name="mu")(pooled)
-        log_sigma = jnp.clip(nn.Dense(self.h_dim, name="log_sigma")(pooled), -6.0, 2.0)
+        mu = Dense(self.h_dim, name="mu")(pooled)
+        log_sigma = jnp.clip(Dense(self.h_dim, name="log_sigma")(pooled), -6.0, 2.0)
         return mu, log_sigma
 
 
