@@ -177,3 +177,27 @@ def test_ynnpack_off_is_an_option_this_xla_accepts_and_keeps_the_maths(monkeypat
     default = lowered.compile()(x, w1, w2)
     off = lowered.compile(compiler_options={YNN_OPTION: ""})  # an unknown option or value raises
     np.testing.assert_allclose(off(x, w1, w2), default, rtol=1e-4, atol=1e-4)
+
+
+_THREEFRY_PROBE = """
+import sys
+import jax
+if sys.argv[1] == "zsbfm":
+    import zsbfm  # noqa: F401  (unrolls threefry on the CPU)
+key = jax.random.PRNGKey(7)
+draw = jax.jit(lambda k: (jax.random.bits(k, (5,)), jax.random.normal(jax.random.split(k)[1], (3,))))
+print(" while(" in draw.lower(key).compile().as_text(), *jax.device_get(draw(key))[0], *jax.device_get(draw(key))[1])
+"""
+
+
+def test_import_unrolls_threefry_and_keeps_every_random_bit():
+    """import zsbfm lowers threefry2x32 without JAX's CPU while loop (zsbfm/cpu_tuning.py):
+    the compiled draw holds no loop, and its bits are those of JAX's own lowering."""
+    import subprocess
+    import sys
+
+    run = lambda mode: subprocess.run([sys.executable, "-c", _THREEFRY_PROBE, mode], capture_output=True,
+                                      text=True, check=True).stdout.split()
+    jax_own, ours = run("jax"), run("zsbfm")
+    assert jax_own[0] == "True" and ours[0] == "False"  # the loop is there without zsbfm, gone with it
+    assert ours[1:] == jax_own[1:]

@@ -9,9 +9,10 @@ Public API:
     make_train(cfg)           the pure pieces of a run (train(key) etc.), for custom loops
 """
 
-from zsbfm.cpu_tuning import limit_blas_threads
+from zsbfm.cpu_tuning import limit_blas_threads, unroll_threefry
 
 limit_blas_threads()  # before anything loads scipy's LAPACK: see zsbfm/cpu_tuning.py
+unroll_threefry()  # the same random bits without a loop per draw: see zsbfm/cpu_tuning.py
 
 from zsbfm.config import Config  # noqa: E402
 from zsbfm.envs import make_env  # noqa: E402
