@@ -6,37 +6,9 @@ import functools
 from typing import Sequence
 
 import flax.linen as nn
-import jax
 import jax.numpy as jnp
-from jax import lax
 
-
-@jax.custom_vjp
-def matmul(x, kernel):
-    """y = x @ kernel: x [..., i], kernel [i, o] -> y [..., o].
-
-    Same value and gradients as `x @ kernel`; only the kernel's gradient is formed
-    differently: JAX's own rule computes dL/dkernel as (g^T x)^T, an [o, i] product then
-    transposed, and under vmap (the twin heads, the seeds) XLA's CPU backend keeps that
-    transpose as a strided copy fused into the optimizer's update (up to a fifth of the
-    paper-size FB update). Here it is x^T g, formed directly in the kernel's [i, o] layout
-    (docs/results.md, "Throughput")."""
-    return x @ kernel
-
-
-def _matmul_fwd(x, kernel):
-    return x @ kernel, (x, kernel)
-
-
-def _matmul_bwd(res, g):
-    x, kernel = res
-    dx = lax.dot_general(g, kernel, (((g.ndim - 1,), (1,)), ((), ())))  # g kernel^T: [..., i]
-    dk = lax.dot_general(x.reshape(-1, x.shape[-1]), g.reshape(-1, g.shape[-1]),
-                         (((0,), (0,)), ((), ())))                      # x^T g: [i, o]
-    return dx, dk
-
-
-matmul.defvjp(_matmul_fwd, _matmul_bwd)
+from zsbfm.ops.matmul import matmul
 
 
 def _dense_dot_general(lhs, rhs, dimension_numbers, precision=None, preferred_element_type=None):
@@ -47,7 +19,7 @@ def _dense_dot_general(lhs, rhs, dimension_numbers, precision=None, preferred_el
     return matmul(lhs, rhs)
 
 
-# flax's Dense (same parameters, names and initialisers) with `matmul`'s kernel gradient
+# flax's Dense (same parameters, names and initialisers) with ops.matmul's backward products
 Dense = functools.partial(nn.Dense, dot_general=_dense_dot_general)
 
 

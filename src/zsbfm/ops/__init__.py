@@ -1,5 +1,6 @@
 """Small maths used by the agents."""
 
+from zsbfm.ops.matmul import matmul
 from zsbfm.ops.sphere import project_to_sphere, sample_sphere
 
-__all__ = ["project_to_sphere", "sample_sphere"]
+__all__ = ["matmul", "project_to_sphere", "sample_sphere"]
