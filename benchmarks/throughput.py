@@ -203,7 +203,7 @@ def main():
     print(f"| f32 matmul peak: the best of the rates above | {peak:,.0f} GFLOP/s |")
     print("\n| update (fourrooms) | seeds | updates/s | GFLOP / update | GFLOP/s | of matmul peak |\n|---|---|---|---|---|---|")
     for algo, size, seeds, rate, gflop in measured:
-        print(f"| {algo} {size} preset | {seeds} | {rate:,.1f} | {gflop:.2f} | {rate * gflop:,.0f} "
+        print(f"| {algo} {size} preset | {seeds} | {rate:,.{2 if rate < 10 else 1}f} | {gflop:.2f} | {rate * gflop:,.0f} "
               f"| {rate * gflop / peak:.0%} |")
 
 
