@@ -1,4 +1,4 @@
-"""Small maths used by the agents."""
+"""Small maths used by the networks and agents."""
 
 from zsbfm.ops.matmul import matmul
 from zsbfm.ops.sphere import project_to_sphere, sample_sphere

@@ -2,9 +2,13 @@
 
 Same value and gradients as the plain product; only the shapes of the backward products
 differ. On the 2-core CPU, XLA's dots run a product that contracts a transposed operand
-(x^T g, g W^T) at ~100-130 GFLOP/s where the plain [p, q] x [q, r] product reaches ~170. At large sizes, writing the transposed operand out first and then
-multiplying plainly is 1.2-1.5x faster, the copy included; at the CPU presets' sizes (256
-wide) it is slower, so the rule is by size (LARGE_DIM, static: shapes are known at trace).
+(x^T g, g W^T) at ~100-130 GFLOP/s where the plain [p, q] x [q, r] product reaches ~170.
+At large sizes, writing the transposed operand out first and then multiplying plainly is
+1.2-1.5x faster, the copy included; at the CPU presets' sizes (256 wide) it is slower, so
+the rule is by size (LARGE_DIM, static: shapes are known at trace time).
+
+A `jax.custom_vjp`: reverse mode only (jax.grad, jax.vjp); forward mode (jax.jvp,
+jax.jacfwd) through it raises.
 """
 
 from __future__ import annotations
