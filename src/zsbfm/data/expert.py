@@ -400,12 +400,12 @@ def with_expert(env, cfg, progress: bool = True):
 
 def dataset_path(cfg, env) -> str:
     """data_dir/antwind/data-<hash>.npz: the hash of everything cfg's dataset depends on."""
-    expert = cfg.data_policy == "expert"
+    settings = expert_settings(cfg) if cfg.data_policy == "expert" else None
     spec = dict(policy=cfg.data_policy, episodes=cfg.episodes_per_layout, seed=cfg.seed,
                 noise=cfg.expert_noise, env=_env_spec(env),
-                expert=dataclasses.asdict(expert_settings(cfg)) if expert else None,
+                expert=dataclasses.asdict(settings) if settings else None,
                 # a shipped expert and one trained here may differ in rounding, so their data too
-                expert_origin=expert_origin(env, expert_settings(cfg), cfg.expert_source) if expert else None)
+                expert_origin=expert_origin(env, settings, cfg.expert_source) if settings else None)
     return os.path.join(cfg.data_dir, "antwind", f"data-{_digest(spec)}.npz")
 
 
