@@ -11,7 +11,8 @@ from zsbfm.evaluate import protocol_score
 
 # A tiny 2-seed FB run on Four-Rooms (400 updates) written at commit c971d54, the last with
 # the removed options (zsbfm.config.REMOVED_FIELDS): its config.json still holds h_cond,
-# twin_target, lr_schedule and enc_pred_horizon, at the values that remain.
+# twin_target (since returned as a field), lr_schedule and enc_pred_horizon, at the values
+# that remain.
 FIXTURE = os.path.join(os.path.dirname(__file__), "fixtures", "fb_c971d54")
 
 
@@ -28,8 +29,7 @@ def test_a_run_saved_before_the_options_were_removed_evaluates_to_its_numbers():
             np.testing.assert_allclose(again, reported[split], atol=1e-4)
 
 
-@pytest.mark.parametrize("field,value", [("h_cond", "film"), ("twin_target", "min"),
-                                         ("lr_schedule", "cosine"), ("enc_pred_horizon", 3),
+@pytest.mark.parametrize("field,value", [("h_cond", "film"), ("lr_schedule", "cosine"), ("enc_pred_horizon", 3),
                                          ("obs_encoding", "cell")])
 def test_a_run_that_used_a_removed_option_is_a_one_line_error(field, value):
     with open(os.path.join(FIXTURE, "config.json")) as f:
@@ -42,5 +42,5 @@ def test_a_run_that_used_a_removed_option_is_a_one_line_error(field, value):
 def test_setting_a_removed_field_names_it():
     with pytest.raises(ValueError, match="Config.h_cond='film' is a removed option"):
         zsbfm.Config.preset("fourrooms", "bfb", h_cond="film")
-    with pytest.raises(ValueError, match="Config.twin_target='min' is a removed option"):
-        zsbfm.Config.preset("fourrooms").with_overrides(["twin_target=min"])
+    with pytest.raises(ValueError, match="Config.lr_schedule='cosine' is a removed option"):
+        zsbfm.Config.preset("fourrooms").with_overrides(["lr_schedule=cosine"])

@@ -1,7 +1,8 @@
 """Run configuration: one frozen dataclass, presets per (env, algo, size), validated early.
 
 `Config.preset(env, algo)` gives the CPU preset (sized to finish on a 2-core machine);
-`Config.preset(env, algo, size="paper")` gives the paper's GPU sizes (Table 4). Every
+`Config.preset(env, algo, size="paper")` gives the paper's GPU sizes (Table 4), and
+size="authors" the settings of the authors' public code (gridworlds). Every
 value is checked in `__post_init__`, so a bad value fails with the field's name before
 anything is traced or compiled. Use `dataclasses.replace(cfg, field=value)` to change a
 field (it re-validates).
@@ -20,7 +21,10 @@ ENVS = env_names()                     # the environments registered at import (
 ALGOS = ("fb", "bfb", "rfb", "oracle", "hilp", "lap", "random")  # the built-in agents (zsbfm.agents.AGENTS)
 BELIEF_ALGOS = ("bfb", "rfb")          # infer h with the context encoder
 ENCODER_MODES = ("staged", "joint")
-SIZES = ("cpu", "long", "paper")   # "long": the gridworlds' ~3 h table (docs/results.md)
+# "long": the gridworlds' longer table (docs/results.md); "paper": Table 4; "authors": the
+# authors' public code (BeliefConditionedFB: gridworlds; README "Presets" says where it and
+# Table 4 disagree)
+SIZES = ("cpu", "long", "paper", "authors")
 TARGET_POLICIES = ("greedy", "boltzmann", "uniform")
 SPLUS = ("batch", "states", "exact")    # the s+ estimator of the FB loss (agents/fb.py)
 # Float settings a vmapped sweep can vary inside one compiled program (zsbfm.sweep): each is
@@ -29,7 +33,9 @@ SPLUS = ("batch", "states", "exact")    # the s+ estimator of the FB loss (agent
 SWEEPABLE = ("lr", "lr_B", "q_loss_coef", "tau", "gamma", "temperature", "ortho_coef", "z_mix", "clip_norm",
              "kappa", "enc_lr", "enc_beta", "feat_tau", "feat_gamma", "hilp_expectile",
              "hilp_p_traj_goal", "target_noise", "target_noise_clip")
-F_ARCHS = ("reference", "normed_trunk")  # F's layer layout (nets/fb.py)
+F_ARCHS = ("reference", "normed_trunk", "mlp")  # F's (and with "mlp" B's) layer layout (nets/fb.py)
+TWIN_TARGETS = ("mean", "min")           # how the twin heads' target measures combine (agents/fb.py)
+OBS_ENCODINGS = ("onehot", "raw", "unscaled")  # the networks' observation input (agents/fb.py obs_features)
 DATA_POLICIES = ("expert", "random")
 EXPERT_SOURCES = ("shipped", "train")
 
@@ -65,18 +71,23 @@ class Config:
     dataset: str = ""
 
     # --- FB -----------------------------------------------------------------------------
-    obs_encoding: str = "onehot"              # network input: "onehot" (grid coords) | "raw"
+    # network input: "onehot" (one-hot of each grid coordinate) | "raw" (coordinates scaled
+    # to [0, 1]) | "unscaled" (the observation as the env emits it: the authors' input)
+    obs_encoding: str = "onehot"
     d: int = 50                               # latent dimension of z, F, B
     f_pre_hidden: tuple[int, ...] = (128,)    # preprocessor hidden layers
     f_pre_out: int = 128                      # preprocessor output width
     f_hidden: tuple[int, ...] = (256,)        # F trunk hidden layers
-    f_arch: str = "reference"                 # F's layers: "reference" | "normed_trunk" (nets/fb.py)
+    f_arch: str = "reference"                 # F's layers: "reference" | "normed_trunk" | "mlp" (also B's; nets/fb.py)
     b_hidden: tuple[int, ...] = (128, 128)    # B hidden layers
     f_heads: int = 2                          # independent F heads: 2 = twin F (min for the policy), 1 = single
+    # the twin heads' target measure: "mean" of Mbar_k (metamotivo) | elementwise "min" (the
+    # authors' code; biased down by half the heads' gap, agents/fb.py FBAgent.loss)
+    twin_target: str = "mean"
     lr: float = 1e-3                          # Adam learning rate of F, B (and actor / features)
     batch_size: int = 256                     # transitions per update
     gamma: float = 0.95                       # paper: 0.99 (docs/experiments.md: 10k-20k CPU updates cannot propagate its horizon)
-    tau: float = 0.05                         # Polyak rate of the target networks (paper: 0.05)
+    tau: float = 0.05                         # Polyak rate of the target networks (paper's Table 4: 0.05; the authors' code: 0.01)
     z_mix: float = 0.5                        # probability that a training z is B(s)
     ortho_coef: float = 1.0                   # weight of B's orthonormality loss
     target_policy: str = "greedy"             # "greedy" | "boltzmann" | "uniform"
@@ -99,6 +110,8 @@ class Config:
     # --- Belief-FB / Rotation-FB (ignored by fb) -------------------------------------------
     h_dim: int = 0               # dimension of the context h; 0 -> d (rfb needs h_dim = d)
     h_in_sa: bool = False        # h also enters F's (s, a) preprocessor (paper: only with z)
+    h_noise: bool = False        # FB trains on h ~ q(h | episode) = mu + sigma eps, a fresh draw per update (the authors'); False: mu
+    h_standardize: bool = True   # h standardised by the dataset statistics of mu (agents/belief.py); False: the encoder's own scale
     enc_embed: int = 32          # transformer width
     enc_heads: int = 4           # attention heads per block
     enc_layers: int = 2          # transformer blocks (0: a per-token MLP, mean-pooled)
@@ -149,8 +162,10 @@ class Config:
             bad("algo", self.algo, f"one of {tuple(AGENTS)}")
         if self.size not in SIZES:
             bad("size", self.size, f"one of {SIZES}")
-        if self.obs_encoding not in ("raw", "onehot"):
-            bad("obs_encoding", self.obs_encoding, "'raw' or 'onehot'")
+        if self.obs_encoding not in OBS_ENCODINGS:
+            bad("obs_encoding", self.obs_encoding, f"one of {OBS_ENCODINGS}")
+        if self.twin_target not in TWIN_TARGETS:
+            bad("twin_target", self.twin_target, f"one of {TWIN_TARGETS}")
         if self.enc_target not in ("episode", "context"):
             bad("enc_target", self.enc_target, "'episode' or 'context'")
         if self.encoder_mode not in ENCODER_MODES:
@@ -252,8 +267,8 @@ class Config:
             bad("temperature", self.temperature, "temperature > 0")
         if self.batch_size < 2:
             bad("batch_size", self.batch_size, "batch_size >= 2 (the FB loss pairs batch items)")
-        if not spec.discrete and self.obs_encoding != "raw":
-            bad("obs_encoding", self.obs_encoding, f"'raw' for the continuous env {self.env!r} (one-hot needs a grid)")
+        if not spec.discrete and self.obs_encoding == "onehot":
+            bad("obs_encoding", self.obs_encoding, f"'raw' or 'unscaled' for the continuous env {self.env!r} (one-hot needs a grid)")
         if not self.actor_bc >= 0:
             bad("actor_bc", self.actor_bc, "actor_bc >= 0 (0 disables the behaviour-cloning term)")
         if self.actor_bc > 0 and spec.discrete:
@@ -303,6 +318,8 @@ class Config:
         size="cpu": the default, sized for a 2-core CPU (minutes per seed).
         size="paper": the paper's GPU sizes (Table 4: d=100 discrete, F (1024, 1024),
         B (256, 256, 256), batch 1024, lr 1e-4, 1M steps); hours on a GPU.
+        size="authors": the settings of the authors' public code (gridworlds only).
+        size="long": the gridworlds' longer CPU preset.
         """
         if size not in SIZES:
             raise ValueError(f"Config.size={size!r} is invalid: expected one of {SIZES}")
@@ -317,6 +334,7 @@ class Config:
         if algo in BELIEF_ALGOS:  # the encoder phase comes on top of the FB steps
             base.update(_BELIEF_PRESETS[size])
             base.update(spec.belief_presets.get(size, {}))
+        base.update(spec.algo_presets.get(size, {}).get(algo, {}))
         if algo in BELIEF_ALGOS + ("oracle",) and size == "cpu":
             # h also enters F's (s, a) preprocessor: with h only beside z, F barely used even
             # the true layout id (oracle, 4 layouts: 0.17 train success; with h_in_sa: 0.42).
@@ -399,6 +417,8 @@ class Config:
 
 # Fields whose default changed: a saved config without the field ran with the old value.
 LEGACY_DEFAULTS: dict[str, Any] = {"f_arch": "normed_trunk"}
+# twin_target was a removed option between c971d54 and its return (size="authors"): a config
+# saved then lacks it and ran with "mean", the default.
 
 # Options no preset used and no table showed better, removed from the code (their
 # measurements: docs/experiments.md, "Removed options"; the code: commit REMOVED_IN's parent).
@@ -407,7 +427,6 @@ LEGACY_DEFAULTS: dict[str, Any] = {"f_arch": "normed_trunk"}
 REMOVED_IN = "c971d54"
 REMOVED_FIELDS: dict[str, tuple[Any, str]] = {  # field: (the value that remains, what it was)
     "h_cond": ("concat", "how h conditioned F: FiLM or the outer product"),
-    "twin_target": ("mean", "the min of the twin target measures"),
     "lr_schedule": ("constant", "a cosine learning-rate schedule"),
     "enc_pred_horizon": (1, "the predictor regressing the mean of the next k states"),
 }
@@ -424,4 +443,5 @@ _BELIEF_PRESETS: dict[str, dict[str, Any]] = {
     "long": dict(enc_steps=4_000, steps=44_000),
     "paper": dict(enc_steps=10_000, steps=1_010_000, enc_embed=128, enc_mlp=256,
                   pred_hidden=(256, 256, 256), enc_lr=1e-4),
+    "authors": {},  # each env that has the size sets its encoder (envs/gridworld.py)
 }

@@ -14,9 +14,10 @@ context, where FB mixes in B of states from any layout.
 
 Schedules (Config.encoder_mode):
   "staged" (default, the paper's): steps [0, enc_steps) train f_dyn only; at step
-    enc_steps the encoder is frozen and mu of every episode's context window(s) is
-    computed once into `h_table` [episodes, windows, h_dim]; FB then reads h from the
-    table. With context_len = episode_len a window *is* the episode, so the table is exact;
+    enc_steps the encoder is frozen and mu (and sigma) of every episode's context
+    window(s) is computed once into `h_table` [episodes, windows, h_dim]; FB then reads h
+    from the table (Config.h_noise: a fresh draw mu + sigma eps per update, as the
+    authors' code, which re-runs the frozen encoder on every batch). With context_len = episode_len a window *is* the episode, so the table is exact;
     with shorter contexts it holds `windows_per_episode` random windows per episode.
   "joint": from step 0, every step samples enc_batch episodes, infers h for them with
     gradients, and trains encoder + FB on the sum of both losses, the FB batch drawn
@@ -52,7 +53,8 @@ class BeliefState:
     opt_state: Any            # FB optimiser (over all of params; enc gets zero grads when staged)
     step: Array
     enc_opt_state: Any        # encoder pre-training optimiser
-    h_table: Array            # [episodes, windows, h_dim], filled at step enc_steps (staged)
+    h_table: Array            # [episodes, windows, h_dim] h = standardised mu, filled at step enc_steps (staged)
+    h_sigma_table: Array      # [episodes, windows, h_dim] q's sigma on h's scale (read when Config.h_noise)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -136,9 +138,10 @@ class BeliefFBAgent(FBAgent):
                "h_mean": jnp.zeros((self.h_dim,)), "h_std": jnp.ones((self.h_dim,))}
         params = self.init_fb_params(k_F, k_B).replace(enc=enc)
         n_ep = c.n_train_layouts * c.episodes_per_layout
+        table = jnp.zeros((n_ep, self.num_windows, self.h_dim))
         return BeliefState(params=params, target=params, opt_state=self.optimizer.init(params),
                            step=jnp.zeros((), jnp.int32), enc_opt_state=self.enc_optimizer.init(enc),
-                           h_table=jnp.zeros((n_ep, self.num_windows, self.h_dim)))
+                           h_table=table, h_sigma_table=table)
 
     # -- encoder pre-training ------------------------------------------------------------------
     def encoder_loss(self, enc, window, target, key, context=None):
@@ -220,7 +223,9 @@ class BeliefFBAgent(FBAgent):
                              enc_opt_state=enc_opt_state, step=state.step + 1), metrics
 
     def build_h_table(self, state: BeliefState, dataset, key) -> BeliefState:
-        """mu of `num_windows` context windows of every episode, with the frozen encoder."""
+        """q(h | window) of `num_windows` context windows of every episode, with the frozen
+        encoder: h_table = standardised mu, h_sigma_table = sigma / std (Config.h_standardize;
+        else mean 0 and std 1: the encoder's own scale)."""
         L, T, W = self.cfg.context_len, dataset.episode_len, self.num_windows
         starts = jax.random.randint(key, (dataset.num_episodes, W), 0, T - L + 1)
         if W == 1 and L == T:
@@ -229,20 +234,28 @@ class BeliefFBAgent(FBAgent):
         def one_episode(args):
             obs, action, st = args
             idx = st[:, None] + jnp.arange(L)[None]                       # [W, L]
-            mu, _ = self.encode(state.params.enc, obs[idx], action[idx], obs[idx + 1])
-            return mu                                                      # [W, h_dim]
+            return self.encode(state.params.enc, obs[idx], action[idx], obs[idx + 1])  # 2 x [W, h_dim]
 
-        table = jax.lax.stop_gradient(
+        table, log_sigma = jax.lax.stop_gradient(
             jax.lax.map(one_episode, (dataset.obs, dataset.action, starts), batch_size=256))
-        enc = dict(state.params.enc, h_mean=table.mean((0, 1)), h_std=table.std((0, 1)) + 1e-6)
+        if self.cfg.h_standardize:
+            enc = dict(state.params.enc, h_mean=table.mean((0, 1)), h_std=table.std((0, 1)) + 1e-6)
+        else:
+            enc = state.params.enc  # h_mean 0, h_std 1 from init
         return state.replace(params=state.params.replace(enc=enc), target=state.target.replace(enc=enc),
-                             h_table=self.standardize(enc, table))
+                             h_table=self.standardize(enc, table),
+                             h_sigma_table=jnp.exp(log_sigma) / enc["h_std"])
 
     # -- FB phase hooks ------------------------------------------------------------------------
     def train_context(self, state: BeliefState, dataset, batch: Transitions, key: Array) -> Array:
-        """h of a context window from each transition's own episode (from the frozen table)."""
+        """h of a context window from each transition's own episode (from the frozen table):
+        its mean, or with Config.h_noise a draw mu + sigma eps, eps ~ N(0, I) per row."""
         w = jax.random.randint(key, batch.episode.shape, 0, self.num_windows)
-        return state.h_table[batch.episode, w]
+        h = state.h_table[batch.episode, w]
+        if self.cfg.h_noise:  # fold_in: the window draw keeps the key it always had
+            eps = jax.random.normal(jax.random.fold_in(key, 1), h.shape)
+            h = h + state.h_sigma_table[batch.episode, w] * eps
+        return h
 
     # -- the update ----------------------------------------------------------------------------
     @staticmethod

@@ -99,6 +99,21 @@ def fb_loss_splus(F: Array, B_next: Array, B_plus: Array, target_M: Array, gamma
                                      "M_offdiag": jnp.mean(jnp.einsum("knm,m->kn", M, w))}
 
 
+def head_gap(Ms: Array, rho: Array | None = None, exclude_diag: bool = False) -> Array:
+    """The twin heads' disagreement on the s+ side of the loss: E_{i, s+} [max_k Ms_k - min_k Ms_k]
+    (= E |M_1 - M_2| for two heads). Ms: [K, n, m]; rho [m] weights the s+ columns (None:
+    uniform); exclude_diag: the batch estimator's pairs i != j (m = n).
+
+    With a min target the off-diagonal mean of M has the fixed point
+    (1 - gamma gap / 2) / (1 - gamma): stable only while the heads agree (docs/results.md)."""
+    spread = jnp.max(Ms, 0) - jnp.min(Ms, 0)                                  # [n, m]
+    if exclude_diag:
+        n = spread.shape[0]
+        return jnp.sum(spread * (1.0 - jnp.eye(n))) / (n * (n - 1))
+    w = jnp.full(spread.shape[1:], 1.0 / spread.shape[1]) if rho is None else rho
+    return jnp.mean(spread @ w)
+
+
 def ortho_loss(B: Array) -> Array:
     """Orthonormality of B over a batch: -2 mean diag(B B^T) + mean offdiag(B B^T)^2."""
     n = B.shape[0]
@@ -206,7 +221,7 @@ class FBAgent:
 
     @property
     def B_net(self) -> BackwardNet:
-        return BackwardNet(self.cfg.d, self.cfg.b_hidden)
+        return BackwardNet(self.cfg.d, self.cfg.b_hidden, arch=self.cfg.f_arch)
 
     @property
     def optimizer(self) -> optax.GradientTransformation:
@@ -226,13 +241,17 @@ class FBAgent:
     def obs_features(self, obs: Array) -> Array:
         """Network input for an observation (Config.obs_encoding).
 
-        "raw":    the normalised coordinates, [..., obs_dim].
-        "onehot": one-hot of each integer coordinate, [..., sum of (high - low + 1)]; for
-                  grid observations. Same information as (x, y), but lets an MLP carve
-                  the sharp wall discontinuities of a successor measure on a grid.
+        "raw":      the normalised coordinates, [..., obs_dim].
+        "unscaled": the observation as the env emits it (gridworlds: integer cells 0..10,
+                    the authors' input), [..., obs_dim].
+        "onehot":   one-hot of each integer coordinate, [..., sum of (high - low + 1)]; for
+                    grid observations. Same information as (x, y), but lets an MLP carve
+                    the sharp wall discontinuities of a successor measure on a grid.
         """
         if self.cfg.obs_encoding == "raw":
             return self.normalize_obs(obs)
+        if self.cfg.obs_encoding == "unscaled":
+            return obs
         idx = jnp.round(obs - jnp.asarray(self.env.obs_low)).astype(jnp.int32)
         sizes = [int(h - l) + 1 for l, h in zip(self.env.obs_low, self.env.obs_high)]
         return jnp.concatenate([jax.nn.one_hot(idx[..., i], n) for i, n in enumerate(sizes)], -1)
@@ -378,9 +397,10 @@ class FBAgent:
             plus = aux["splus"] if self.cfg.splus == "states" else self.env.states()
             B_plus = self.backward(params.B, plus)                           # [m, d]
         target_Ms = jnp.einsum("knd,md->knm", target_F, self.backward(target.B, plus))  # [2, n, m]
-        # the mean of the twin heads (metamotivo's default): their min is a per-step downward
-        # bias that the TD recursion amplifies by 1/(1-gamma) on the off-diagonal measure.
-        target_M = jnp.mean(target_Ms, 0)
+        # Twin heads (Config.twin_target): their mean (metamotivo's default) or elementwise min
+        # (the authors'). min = mean - |Mbar_1 - Mbar_2| / 2 for two heads: a per-step downward
+        # bias that the TD recursion amplifies by 1/(1 - gamma) on the off-diagonal measure.
+        target_M = jnp.min(target_Ms, 0) if self.cfg.twin_target == "min" else jnp.mean(target_Ms, 0)
         if self.cfg.splus == "batch":
             l_fb, metrics = fb_loss(F, B_next, target_M, self.cfg.gamma)
             l_ortho = ortho_loss(B_next)
@@ -391,6 +411,8 @@ class FBAgent:
             l_fb, metrics = fb_loss_splus(F, B_next, B_plus, target_M, self.cfg.gamma, aux["rho"])
             l_ortho = ortho_loss_weighted(B_plus, aux["rho"])
         l_actor, m_actor = self.actor_loss(params, batch, task)
+        if target_Ms.shape[0] > 1:
+            metrics["M_head_gap"] = head_gap(target_Ms, aux.get("rho"), exclude_diag=self.cfg.splus == "batch")
         metrics = dict(metrics, **m_actor, fb_loss=l_fb, ortho_loss=l_ortho,
                        q_mean=jnp.mean(jnp.einsum("knd,nd->kn", F, task.z)))
         total = l_fb + self.cfg.ortho_coef * l_ortho + l_actor

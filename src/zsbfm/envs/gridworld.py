@@ -318,16 +318,39 @@ CPU_GRID = dict(n_train_layouts=10, episodes_per_layout=1000, d=100, splus="exac
                 steps=20_000, chunk_steps=1_000)
 LONG_GRID = dict(CPU_GRID, steps=40_000, chunk_steps=2_000)
 
+# The authors' public code (BeliefConditionedFB: configs/experiment/fb_dynamics_discrete_4rooms.yaml,
+# agents/dynamics_fb.py, utils/networks.py, the notebook dynamics_fb_4rooms.ipynb that sets
+# gamma 0.99, d 150 and a 32-d h): their F and B layouts, twin F with the min target,
+# batch 1024, Adam 3e-4 after a global-norm clip of 1, Polyak 0.01, Boltzmann T = 350, raw
+# integer (x, y), s+ from the batch, no Q-loss; 10 layouts x 1000 episodes; 20k FB updates
+# (their recorded curve's first point). Departures (README "Presets"): the encoder phase.
+AUTHORS_GRID = dict(n_train_layouts=10, episodes_per_layout=1000, obs_encoding="unscaled", d=150,
+                    f_arch="mlp", f_hidden=(1024, 512, 512), b_hidden=(512, 512, 512), f_heads=2,
+                    twin_target="min", batch_size=1024, lr=3e-4, clip_norm=1.0, tau=0.01, gamma=0.99,
+                    z_mix=0.5, target_policy="boltzmann", temperature=350.0, q_loss_coef=0.0,
+                    splus="batch", steps=20_000, chunk_steps=1_000)
+# Their encoder: 4 blocks, 4 heads, width 96, MLP 256, a 32-d Gaussian h (sampled for every
+# FB update), predictor (256, 256, 256) on the window's own transitions, no KL term, no
+# contrast, no standardisation of h. They pre-train it 80k steps on 1024 windows of 100
+# transitions (~20 PFLOP, weeks on 2 cores): here AUTHORS_ENC_STEPS steps on 64 windows.
+AUTHORS_ENC = dict(h_dim=32, enc_embed=96, enc_heads=4, enc_layers=4, enc_mlp=256,
+                   pred_hidden=(256, 256, 256), enc_lr=3e-4, enc_beta=0.0, enc_contrast=0.0,
+                   enc_target="episode", h_noise=True, h_standardize=False, h_in_sa=False,
+                   enc_batch=64, enc_steps=4_000, steps=24_000)
+
 for _family in FAMILIES.values():
     register(EnvSpec(
         name=_family.name,
         make=functools.partial(GridWorld, _family.name),
         episode_len=100, discrete=True, n_train=20, finite_states=True,
         max_train=None if _family.max_layouts is None else _family.max_layouts - N_TEST_LAYOUTS,
-        presets={"cpu": CPU_GRID, "long": LONG_GRID,
+        presets={"cpu": CPU_GRID, "long": LONG_GRID, "authors": AUTHORS_GRID,
                  "paper": dict(n_train_layouts=20, episodes_per_layout=500, **PAPER_DISCRETE)},
         # the same-layout contrastive term on h (agents/belief.py, not the paper's): with the
         # paper's encoder loss alone h names a Four-Rooms layout for 0.19 of held-out episodes
         belief_presets={"cpu": dict(enc_contrast=1.0, steps=24_000, enc_steps=4_000),
-                        "long": dict(enc_contrast=1.0, steps=44_000, enc_steps=4_000)},
+                        "long": dict(enc_contrast=1.0, steps=44_000, enc_steps=4_000),
+                        "authors": AUTHORS_ENC},
+        # Rotation-FB in their code: h of dimension d (z is drawn around it), Boltzmann T = 300
+        algo_presets={"authors": {"rfb": dict(h_dim=0, temperature=300.0, kappa=50.0)}},
         description=f"{_family.size}x{_family.size} randomized gridworld"))

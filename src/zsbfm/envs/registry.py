@@ -30,6 +30,7 @@ class EnvSpec:
     shares_data: bool = False         # one dataset, recorded once and cached, for every seed (zsbfm.data.sources)
     presets: dict = dataclasses.field(default_factory=dict)         # size -> Config overrides
     belief_presets: dict = dataclasses.field(default_factory=dict)  # size -> bfb / rfb overrides
+    algo_presets: dict = dataclasses.field(default_factory=dict)    # size -> {algo: overrides}, applied last
     description: str = ""
 
 

@@ -4,13 +4,18 @@ F(s, a, w) with w the task input (z for FB, [z; h] for the belief flavours):
 two preprocessors embed (s) or (s, a) and (s, w) separately, their outputs are
 concatenated and an MLP maps them to d (continuous actions) or |A| x d (discrete).
 Config.f_arch:
-  "reference": the FB reference architecture (Meta's controllable_agent ForwardMap):
-               preprocessor = Linear -> LayerNorm -> tanh, then Linear -> ReLU to pre_out;
-               trunk = Linear -> ReLU layers, then a linear output.
+  "reference": the two-preprocessor layout of Meta's FB code (controllable_agent's and
+               metamotivo's continuous-control ForwardMap): preprocessor = Linear ->
+               LayerNorm -> tanh, then Linear -> ReLU to pre_out; trunk = Linear -> ReLU
+               layers, then a linear output.
   "normed_trunk": this project's F before f_arch existed: linear preprocessor outputs and a
                trunk whose first layer is Linear -> LayerNorm -> tanh again (saved runs
                without the field load with it). On one Four-Rooms layout it made the
                worse F (README, Presets).
+  "mlp":       the authors' layout (BeliefConditionedFB; also controllable_agent's discrete
+               ForwardMap, `preprocess=False`): one trunk on [s, a, z, h] (`NormedMLP`:
+               tanh + LayerNorm after the first layer, GELU + LayerNorm after the others,
+               orthogonal init); the preprocessor fields are unused. B uses it too.
 B(s) is an MLP to d, projected onto the sphere of radius sqrt(d).
 
 The context h (the last h_dim entries of w) is an input of F: beside z in pre_sw (the
@@ -27,7 +32,7 @@ import flax.linen as nn
 import jax.numpy as jnp
 
 from zsbfm.config import F_ARCHS
-from zsbfm.nets.mlp import MLP
+from zsbfm.nets.mlp import MLP, NormedMLP
 from zsbfm.ops.sphere import project_to_sphere
 
 
@@ -52,12 +57,14 @@ class ForwardNet(nn.Module):
     def __call__(self, obs, task, action=None):
         if self.arch not in F_ARCHS:
             raise ValueError(f"arch={self.arch!r} is invalid: expected one of {F_ARCHS}")
-        h = task[..., task.shape[-1] - self.h_dim:]
-        sa = obs if action is None else jnp.concatenate([obs, action], -1)
-        if self.h_in_sa and self.h_dim:
-            sa = jnp.concatenate([sa, h], -1)
-        sw = jnp.concatenate([obs, task], -1)
         out = self.d * self.n_actions if self.n_actions else self.d
+        sa = obs if action is None else jnp.concatenate([obs, action], -1)
+        if self.arch == "mlp":  # one trunk on [s, a, w] (h is already in w; h_in_sa unused)
+            y = NormedMLP(self.hidden, out, name="trunk")(jnp.concatenate([sa, task], -1))
+            return y.reshape(*y.shape[:-1], self.n_actions, self.d) if self.n_actions else y
+        if self.h_in_sa and self.h_dim:
+            sa = jnp.concatenate([sa, task[..., task.shape[-1] - self.h_dim:]], -1)
+        sw = jnp.concatenate([obs, task], -1)
         ref = self.arch == "reference"
         pre, trunk = dict(out_relu=ref), dict(norm_first=not ref)
         e_sa = MLP(self.pre_hidden, self.pre_out, name="pre_sa", **pre)(sa)
@@ -85,14 +92,17 @@ class TwinForward(ForwardNet):
 
 
 class BackwardNet(nn.Module):
-    """B(s) -> float32[..., d] with |B(s)| = sqrt(d)."""
+    """B(s) -> float32[..., d] with |B(s)| = sqrt(d). arch "mlp": the authors' NormedMLP;
+    any other: `MLP` (Linear -> LayerNorm -> tanh, then ReLU layers)."""
 
     d: int
     hidden: Sequence[int]
+    arch: str = "reference"
 
     @nn.compact
     def __call__(self, obs):
-        return project_to_sphere(MLP(self.hidden, self.d)(obs))
+        net = NormedMLP(self.hidden, self.d) if self.arch == "mlp" else MLP(self.hidden, self.d)
+        return project_to_sphere(net(obs))
 
 
 class Actor(nn.Module):

@@ -51,3 +51,23 @@ class MLP(nn.Module):
             if self.out_relu:
                 x = nn.relu(x)
         return x
+
+
+class NormedMLP(nn.Module):
+    """The MLP of the authors' code (F and B of BeliefConditionedFB, `utils/networks.py`):
+    the first hidden layer Dense -> tanh -> LayerNorm, every later hidden layer
+    Dense -> GELU -> LayerNorm, a linear output; orthogonal initialisation throughout.
+
+    x: [..., in] -> [..., out].
+    """
+
+    hidden: Sequence[int]
+    out: int
+
+    @nn.compact
+    def __call__(self, x):
+        init = nn.initializers.orthogonal()
+        for i, h in enumerate(self.hidden):
+            x = Dense(h, kernel_init=init)(x)
+            x = nn.LayerNorm()(jnp.tanh(x) if i == 0 else nn.gelu(x))
+        return Dense(self.out, kernel_init=init)(x)
