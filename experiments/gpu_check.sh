@@ -1,7 +1,8 @@
 #!/usr/bin/env bash
-# The device check: paper-size Four-Rooms FB and Belief-FB for as many updates as fit in
-# 8 minutes, their learning curves and updates/s (experiments/gpu_check.py). On a machine
-# without a GPU the same path runs at tiny sizes.
+# The device check: Four-Rooms FB and Belief-FB at the paper's sizes, then Belief-FB,
+# Rotation-FB and FB at the authors' settings with 3 vmapped seeds, each for as many updates
+# as fit its share of 7 minutes: learning curves and updates/s (experiments/gpu_check.py).
+# On a machine without a GPU the same path runs at tiny sizes.
 set -euo pipefail
 cd "$(dirname "$0")/.."
 PY=${PY:-.venv/bin/python}

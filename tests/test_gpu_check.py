@@ -18,8 +18,10 @@ def test_gpu_check_runs_tiny_on_cpu(tmp_path):
                           capture_output=True, text=True, timeout=600)
     assert proc.returncode == 0, proc.stderr[-2000:]
     res = json.loads(out.read_text())
-    assert res["backend"] == "cpu" and [r["algo"] for r in res["results"]] == ["fb", "bfb"]
+    assert res["backend"] == "cpu" and [(r["algo"], r["config"], r["seeds"]) for r in res["results"]] == [
+        ("fb", "paper (tiny)", 1), ("bfb", "paper (tiny)", 1), ("bfb", "authors (tiny)", 3),
+        ("rfb", "authors (tiny)", 3), ("fb", "authors (tiny)", 3)]
     for r in res["results"]:
         row = r["curve"][0]
-        assert r["config"] == "paper (tiny)" and row["updates"] == 10 and row["updates_per_s"] > 0
+        assert row["updates"] == 10 and row["updates_per_s"] > 0 and len(row["train/paper_per_seed"]) == r["seeds"]
         assert 0 <= row["train/dense"] <= 1 and row["gflop_per_update"] > 0

@@ -22,6 +22,7 @@ def _plt():
 METRIC_NOTES = {
     "fb_loss": "rises as M grows: -mean diag F^T B\n(the diagonal term) dominates",
     "fb_diag": "-mean_i F(s_i,a_i)^T B(s'_i)",
+    "M_head_gap": "E|Mbar_1 - Mbar_2| = g; min target: M_offdiag\n-> (1 - gamma g / 2) / (1 - gamma)",
 }
 NOT_METRICS = ("chunk", "step", "seconds", "wall_s", "flops")
 
