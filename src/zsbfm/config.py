@@ -335,7 +335,7 @@ class Config:
             base.update(_BELIEF_PRESETS[size])
             base.update(spec.belief_presets.get(size, {}))
         base.update(spec.algo_presets.get(size, {}).get(algo, {}))
-        if algo in BELIEF_ALGOS + ("oracle",) and size == "cpu":
+        if algo in BELIEF_ALGOS + ("oracle",) and size in ("cpu", "long"):
             # h also enters F's (s, a) preprocessor: with h only beside z, F barely used even
             # the true layout id (oracle, 4 layouts: 0.17 train success; with h_in_sa: 0.42).
             base.update(h_in_sa=True)
