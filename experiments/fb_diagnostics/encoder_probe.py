@@ -10,7 +10,13 @@ scoring the other 20%:
   degrees (90 = chance), also on whole held-out train winds (fit on the even winds, score
   the odd ones: does h interpolate between winds?), and on fresh episodes of the 5 test
   winds with the probe fitted on all train winds (does h extrapolate to the unseen quadrant?).
-- other envs: nearest-centroid accuracy of the layout (chance = 1 / layouts).
+- other envs: nearest-centroid accuracy of the layout (chance = 1 / layouts); and for the
+  gridworlds, a ridge probe of the layout's interior wall map (env.context_features) on mu,
+  fitted on every train episode and scored on fresh episodes of the 20 held-out test layouts
+  (does h describe walls it has never seen?): the fraction of interior cells classified
+  right, and the balanced accuracy (mean of wall and free recall) on the cells that are
+  walls in some layouts and free in others, beside the mean train map's. --json appends
+  one line of these figures.
 Also prints the predictor's MSE with each episode's own h and with h of a random other
 episode (the gap is what h buys the predictor).
 """
@@ -47,7 +53,9 @@ def main():
     p.add_argument("--env", default="antwind", choices=["antwind", "pointmass", "fourrooms", "doors"])
     p.add_argument("--set", nargs="*", default=[])
     p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--json", default="", help="append the figures as one JSON line to this file")
     a = p.parse_args()
+    out = {"env": a.env, "set": a.set, "seed": a.seed}
     cfg = Config.preset(a.env, "bfb", "cpu", num_seeds=1).with_overrides(a.set)
     env = make_env_for(cfg, progress=False)
     agent = make_agent(cfg, env)
@@ -96,8 +104,11 @@ def main():
     else:
         cents = np.stack([mu[fit & (layout == i)].mean(0) for i in range(cfg.n_train_layouts)])
         guess = np.linalg.norm(mu[score][:, None] - cents[None], axis=-1).argmin(1)
-        print(f"layout nearest-centroid accuracy on held-out episodes: {np.mean(guess == layout[score]):.3f} "
+        out["centroid_accuracy"] = float(np.mean(guess == layout[score]))
+        print(f"layout nearest-centroid accuracy on held-out episodes: {out['centroid_accuracy']:.3f} "
               f"(chance {1 / cfg.n_train_layouts:.3f})")
+        if hasattr(env, "context_features"):
+            out.update(wall_probe(env, agent, enc, cfg, mu, layout, a.seed))
 
     # what h buys the predictor: own h vs a random other episode's h (same targets)
     target = sample_windows(jax.random.PRNGKey(6), ds, ep, cfg.context_len)
@@ -106,6 +117,43 @@ def main():
     own, other = float(pred_mse(jnp.asarray(mu))), float(pred_mse(jnp.asarray(mu[perm])))
     print(f"predictor mse: own h {own:.4f}, another episode's h {other:.4f} (gap {other - own:.4f}); "
           f"mu spread: mean |mu - mean| {np.linalg.norm(mu - mu.mean(0), axis=1).mean():.3f}")
+    out.update(pred_mse_own=own, pred_mse_other=other)
+    if a.json:
+        import json
+
+        with open(a.json, "a") as f:
+            f.write(json.dumps(out) + "\n")
+
+
+def wall_probe(env, agent, enc, cfg, mu, layout, seed, test_episodes=20) -> dict:
+    """Ridge probe wall map <- [mu, 1] fitted on the train episodes, scored on fresh episodes
+    of the held-out test layouts: accuracy over all interior cells and over the door cells
+    (cells free in some train layout and walled in another: where layouts differ)."""
+    feats = lambda ctx: np.asarray(jax.vmap(env.context_features)(ctx))
+    train_w, test_w = feats(env.contexts("train")), feats(env.contexts("test"))
+    tds = jax.jit(lambda k: collect(env, k, env.contexts("test"), test_episodes))(jax.random.PRNGKey(seed + 300))
+    mu_t = np.asarray(jax.jit(lambda o, a_, n: agent.encode(enc, o, a_, n)[0])(
+        *sample_windows(jax.random.PRNGKey(8), tds, jnp.arange(tds.num_episodes), cfg.context_len)))
+    X = np.concatenate([mu, np.ones((len(mu), 1))], 1)
+    W = np.linalg.solve(X.T @ X + 1e-2 * np.eye(X.shape[1]), X.T @ train_w[layout])
+    pred = np.concatenate([mu_t, np.ones((len(mu_t), 1))], 1) @ W > 0.5
+    truth = test_w[np.asarray(tds.context_id)] > 0.5
+    # cells walled in some layouts and free in others (train or test): where layouts differ
+    both = np.concatenate([train_w, test_w])
+    varies = (both.min(0) < 0.5) & (both.max(0) > 0.5)
+
+    def balanced(guess):  # the mean of wall recall and free-cell recall over the varying cells
+        g, t = guess[:, varies], truth[:, varies]
+        return float(0.5 * (np.mean(g[t]) + np.mean(~g[~t])))
+
+    mean_map = np.broadcast_to(train_w.mean(0) > 0.5, truth.shape)
+    res = {"test_wall_cell_accuracy": float(np.mean(pred == truth)),
+           "test_varying_cell_balanced_accuracy": balanced(pred),
+           "mean_map_varying_cell_balanced_accuracy": balanced(mean_map)}
+    print(f"wall-map probe on unseen test layouts: all cells {res['test_wall_cell_accuracy']:.3f}; balanced "
+          f"accuracy on the cells that differ between layouts {res['test_varying_cell_balanced_accuracy']:.3f} "
+          f"(the mean train map: {res['mean_map_varying_cell_balanced_accuracy']:.3f}, 0.5 = chance)")
+    return res
 
 
 if __name__ == "__main__":
