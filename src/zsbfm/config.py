@@ -16,28 +16,18 @@ from typing import Any
 
 import zsbfm.envs  # noqa: F401  (registers the built-in environments)
 from zsbfm.envs.registry import env_names, env_spec
+# the names of every choice live below config (zsbfm.names); re-exported here for callers
+from zsbfm.names import (ALGOS, BELIEF_ALGOS, DATA_POLICIES, ENCODER_MODES, EXPERT_SOURCES,  # noqa: F401
+                         F_ARCHS, OBS_ENCODINGS, ON_NONFINITE, SIZES, SPLUS, TARGET_POLICIES,
+                         TWIN_TARGETS, algo_names)
 
 ENVS = env_names()                     # the environments registered at import (zsbfm.envs.registry)
-ALGOS = ("fb", "bfb", "rfb", "oracle", "hilp", "lap", "random")  # the built-in agents (zsbfm.agents.AGENTS)
-BELIEF_ALGOS = ("bfb", "rfb")          # infer h with the context encoder
-ENCODER_MODES = ("staged", "joint")
-# "long": the gridworlds' longer table (docs/results.md); "paper": Table 4; "authors": the
-# authors' public code (BeliefConditionedFB: gridworlds; README "Presets" says where it and
-# Table 4 disagree)
-SIZES = ("cpu", "long", "paper", "authors")
-TARGET_POLICIES = ("greedy", "boltzmann", "uniform")
-SPLUS = ("batch", "states", "exact")    # the s+ estimator of the FB loss (agents/fb.py)
 # Float settings a vmapped sweep can vary inside one compiled program (zsbfm.sweep): each is
 # only ever used as a number in the traced code (no Python branch reads it). Any other field
 # changes shapes or control flow, so each of its values compiles a program of its own.
 SWEEPABLE = ("lr", "lr_B", "q_loss_coef", "tau", "gamma", "temperature", "ortho_coef", "z_mix", "clip_norm",
              "kappa", "enc_lr", "enc_beta", "feat_tau", "feat_gamma", "hilp_expectile",
              "hilp_p_traj_goal", "target_noise", "target_noise_clip")
-F_ARCHS = ("reference", "normed_trunk", "mlp")  # F's (and with "mlp" B's) layer layout (nets/fb.py)
-TWIN_TARGETS = ("mean", "min")           # how the twin heads' target measures combine (agents/fb.py)
-OBS_ENCODINGS = ("onehot", "raw", "unscaled")  # the networks' observation input (agents/fb.py obs_features)
-DATA_POLICIES = ("expert", "random")
-EXPERT_SOURCES = ("shipped", "train")
 
 
 @dataclasses.dataclass(frozen=True)
@@ -156,10 +146,8 @@ class Config:
         if self.env not in env_names():
             bad("env", self.env, f"one of {env_names()}")
         spec = env_spec(self.env)
-        from zsbfm.agents import AGENTS  # the agent registry (agents import this module)
-
-        if self.algo not in AGENTS:
-            bad("algo", self.algo, f"one of {tuple(AGENTS)}")
+        if self.algo not in algo_names():  # built-in and registered (zsbfm.agents.register_agent)
+            bad("algo", self.algo, f"one of {algo_names()}")
         if self.size not in SIZES:
             bad("size", self.size, f"one of {SIZES}")
         if self.obs_encoding not in OBS_ENCODINGS:

@@ -159,7 +159,7 @@ def evaluate(run, contexts=None, goals=None, key=None, split: str = "test", prot
     bool[seeds, n_contexts, n_goals], or returns float32[seeds, n_contexts, 1] for antwind.
 
     key: None (default) draws each seed's context episodes and rollouts exactly as the
-    run's own evaluation did (`zsbfm.train.eval_key` of the seed's key, then the split's
+    run's own evaluation did (`zsbfm.keys.eval_key` of the seed's key, then the split's
     key), so with the default contexts and goals this reproduces run.results[split];
     a key draws them afresh from it.
     protocol: None for the goals above; or one of the env's protocols (`protocols_of`:
@@ -169,7 +169,7 @@ def evaluate(run, contexts=None, goals=None, key=None, split: str = "test", prot
     """
     from zsbfm.agents import make_agent
     from zsbfm.data.sources import make_env_for
-    from zsbfm.train import eval_key, seed_keys
+    from zsbfm.keys import eval_key, seed_keys
 
     cfg = run.cfg
     env = make_env_for(cfg)

@@ -96,7 +96,8 @@ def sweep(cfg: Config, grid: dict[str, list], resume: bool = True, progress: boo
     docstring. Seed i of every point uses the key of seed i of a plain run of that point's
     Config, so a point's scores equal those of `zsbfm.train` on it (up to float summation
     order)."""
-    from zsbfm.train import final_results, make_train, prepare_run_dir, run_loop, seed_keys
+    from zsbfm.keys import seed_keys
+    from zsbfm.train import final_results, make_train, prepare_run_dir, run_loop
 
     unknown = sorted(set(grid) - {f.name for f in dataclasses.fields(Config)})
     if unknown:

@@ -43,6 +43,7 @@ from zsbfm.data.sources import shared_dataset
 from zsbfm.data.sources import make_env_for
 from zsbfm.evaluate import (default_goals, evaluate_params, evaluate_protocol, metric_of, protocol_score,
                             protocols_of, reward_states, split_results)
+from zsbfm.keys import eval_key, seed_keys  # noqa: F401  (zsbfm.train.seed_keys: the seeds' keys)
 from zsbfm.run import Run
 
 
@@ -77,12 +78,6 @@ class Trainer:
 
 # Incremented each time a chunk is traced; tests use it to check nothing retraces.
 TRACE_COUNTS = {"run_chunk": 0, "evaluate_protocols": 0}
-
-
-def eval_key(seed_key: jax.Array) -> jax.Array:
-    """The key of a seed's evaluations: a function of the seed's key only, so a run's
-    learning curve, its final scores and `zsbfm.evaluate(run)` all use the same tasks."""
-    return jax.random.fold_in(seed_key, 1)
 
 
 def run_protocols(cfg: Config, env) -> tuple[str, ...]:
@@ -234,11 +229,6 @@ def _barrier(name: str) -> None:
         from jax.experimental import multihost_utils
 
         multihost_utils.sync_global_devices(name)
-
-
-def seed_keys(cfg: Config) -> jax.Array:
-    """One independent key per seed of the sweep."""
-    return jax.random.split(jax.random.PRNGKey(cfg.seed), cfg.num_seeds)
 
 
 def _checkpoint_manager(run_dir: str) -> ocp.CheckpointManager:

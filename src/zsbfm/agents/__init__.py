@@ -6,6 +6,7 @@ from zsbfm.agents.fb import FBAgent, FBParams, FBState, fb_loss, ortho_loss
 from zsbfm.agents.oracle import OracleFBAgent
 from zsbfm.agents.random import RandomAgent
 from zsbfm.agents.sf import HILPAgent, LaplacianAgent, SFAgent
+from zsbfm.names import add_algo
 
 AGENTS = {"fb": FBAgent, "bfb": BeliefFBAgent, "rfb": RotationFBAgent, "oracle": OracleFBAgent,
           "hilp": HILPAgent, "lap": LaplacianAgent, "random": RandomAgent}
@@ -14,6 +15,7 @@ AGENTS = {"fb": FBAgent, "bfb": BeliefFBAgent, "rfb": RotationFBAgent, "oracle":
 def register_agent(name: str, cls) -> None:
     """Make `cls(cfg, env)` the agent of Config.algo == name (docs/extending.md)."""
     AGENTS[name] = cls
+    add_algo(name)  # Config accepts the name from now on
 
 
 def make_agent(cfg, env) -> Agent:

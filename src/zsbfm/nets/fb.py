@@ -31,7 +31,7 @@ from typing import Sequence
 import flax.linen as nn
 import jax.numpy as jnp
 
-from zsbfm.config import F_ARCHS
+from zsbfm.names import F_ARCHS
 from zsbfm.nets.mlp import MLP, NormedMLP
 from zsbfm.ops.sphere import project_to_sphere
 
