@@ -1,4 +1,5 @@
 import atexit
+import json
 import os
 import shutil
 import tempfile
@@ -11,6 +12,7 @@ os.environ.setdefault("JAX_PLATFORMS", "cpu")
 os.environ.setdefault("XLA_FLAGS", "--xla_backend_optimization_level=0 --xla_llvm_disable_expensive_passes=true")
 
 import jax  # noqa: E402
+import orbax.checkpoint as ocp  # noqa: E402
 import pytest  # noqa: E402
 
 import zsbfm  # noqa: E402
@@ -68,3 +70,22 @@ def tiny_config(tmp_path, algo="fb", env="fourrooms", **overrides):
 @pytest.fixture
 def tiny_cfg(tmp_path):
     return tiny_config(tmp_path)
+
+
+def strict_lines(path) -> list[dict]:
+    """metrics.jsonl read with a JSON parser that rejects NaN and Infinity."""
+    def reject(token):
+        raise ValueError(f"non-standard JSON constant {token} in {path}")
+
+    with open(path) as f:
+        return [json.loads(line, parse_constant=reject) for line in f]
+
+
+def written_chunks(run_dir) -> int:
+    """The chunks an interrupted run wrote: metrics lines (strict JSON) and checkpoints agree,
+    no results, no lock left."""
+    rows = strict_lines(run_dir / "metrics.jsonl")
+    assert [r["chunk"] for r in rows] == list(range(1, len(rows) + 1))
+    assert ocp.CheckpointManager(str(run_dir / "checkpoints")).latest_step() == len(rows)
+    assert not (run_dir / "results.json").exists() and not (run_dir / ".lock").exists()
+    return len(rows)

@@ -185,11 +185,15 @@ def test_staged_phases_touch_only_their_own_parameters():
     s1, m1 = update(s0, ds, jax.random.PRNGKey(1), jnp.int32(3))              # encoder phase
     assert same(s0.params.F, s1.params.F) and same(s0.params.B, s1.params.B)
     assert not same(s0.params.enc["encoder"], s1.params.enc["encoder"])
-    assert np.isfinite(m1["enc_mse"]) and np.isnan(m1["fb_loss"])
+    assert np.isfinite(m1["enc_mse"]) and m1["fb_loss"] == 0  # a placeholder of the FB phase
+    assert set(agent.phase_metrics(3, m1)) == {"enc_mse", "enc_kl", "h_norm", "enc_nce"}  # enc_contrast > 0
     s2, m2 = update(s1, ds, jax.random.PRNGKey(2), jnp.int32(1000))           # first FB step
     assert same(s1.params.enc["encoder"], s2.params.enc["encoder"])
     assert not same(s1.params.F, s2.params.F)
-    assert np.isfinite(m2["fb_loss"]) and np.isnan(m2["enc_mse"])
+    assert np.isfinite(m2["fb_loss"]) and m2["enc_mse"] == 0
+    fb_names = set(agent.phase_metrics(1000, m2))
+    assert "fb_loss" in fb_names and fb_names | set(agent.ENCODER_METRICS) == set(m2)
+    assert not fb_names & set(agent.ENCODER_METRICS)
     # the h table holds the standardised mu of every episode
     standardized = jax.jit(lambda enc: agent.standardize(enc, agent.encode(enc, ds.obs[:, :-1], ds.action,
                                                                            ds.obs[:, 1:])[0]))

@@ -67,6 +67,22 @@ def test_help_names_the_module_and_has_plain_flags(capsys):
     assert "--no-resume" in out and "--no-no-resume" not in out
 
 
+@pytest.mark.parametrize("command", ["train", "sweep", "collect"])
+def test_help_names_every_value_the_code_accepts(command, capsys):
+    """Every --env, --algo and --size value Config accepts is named in the command's help."""
+    from zsbfm.config import ENVS, SIZES
+    from zsbfm.names import ALGOS
+
+    with pytest.raises(SystemExit):
+        main([command, "--help"])
+    out = " ".join(capsys.readouterr().out.replace("│", " ").split())  # the help box, unwrapped
+    accepted = {"env": ENVS, "algo": ALGOS if command != "collect" else (),
+                "size": SIZES if command != "collect" else ()}
+    for flag, values in accepted.items():
+        for value in values:
+            assert value in out.split(f"--{flag} STR")[1].split(" --")[0], (flag, value)
+
+
 def test_rerunning_a_finished_run_keeps_its_training_time(tmp_path):
     cfg = tiny_config(tmp_path, name="again", eval_protocols="official")
     first = zsbfm.train(cfg, progress=False)

@@ -14,7 +14,7 @@ from zsbfm.envs import index_contexts
 from zsbfm.sweep import parse_grid, sweep
 from zsbfm.train import TRACE_COUNTS
 
-from conftest import tiny_config
+from conftest import strict_lines, tiny_config
 
 
 def test_two_by_two_sweep_equals_four_runs_and_compiles_once(tmp_path):
@@ -24,8 +24,12 @@ def test_two_by_two_sweep_equals_four_runs_and_compiles_once(tmp_path):
     cfg = tiny_config(tmp_path, steps=20, eval_protocols="official", name="sw")
     grid = parse_grid(cfg, ["lr=1e-4,1e-2", "tau=0.05,0.5"])
     before = TRACE_COUNTS["run_chunk"]
-    res = sweep(cfg, grid, progress=False)
+    seen = []
+    res = sweep(cfg, grid, progress=False, callback=lambda chunk, row: seen.append((chunk, row)))
     assert TRACE_COUNTS["run_chunk"] - before == 1, "a sweep of scalar settings is one program"
+    # the callback sees every chunk of every point, with that point's losses per seed
+    assert [(c, r["point"]) for c, r in seen] == [(c, p) for c in (1, 2) for p in range(4)]
+    assert all(len(r["fb_loss"]) == 2 and r["label"] == res.points[r["point"]]["label"] for _, r in seen)
     assert [p["label"] for p in res.points] == ["lr=0.0001 tau=0.05", "lr=0.0001 tau=0.5",
                                                "lr=0.01 tau=0.05", "lr=0.01 tau=0.5"]
     rows = [json.loads(line) for line in open(tmp_path / "runs" / "sw" / "g0" / "metrics.jsonl")]
@@ -94,10 +98,29 @@ def test_protocols_of_the_gridworld():
 
 @pytest.mark.plots
 def test_learning_curve_logs_every_protocol_and_ends_at_the_results(tmp_path):
+    from tensorboard.backend.event_processing.event_accumulator import EventAccumulator
+
+    from zsbfm.loggers import TensorBoardLogger
+
     cfg = tiny_config(tmp_path, steps=40, eval_every=2, name="curve", eval_protocols="all")
     before = TRACE_COUNTS["evaluate_protocols"]
-    run = zsbfm.train(cfg, progress=False)
+    seen = []
+    with TensorBoardLogger(str(tmp_path / "tb")) as tb:
+        run = zsbfm.train(cfg, progress=False, callback=lambda chunk, row: (seen.append((chunk, row)), tb(chunk, row)))
     assert TRACE_COUNTS["evaluate_protocols"] - before == 1, "the curve's evaluation compiles once"
+    # the callback sees every chunk's row, as metrics.jsonl holds it: losses per seed, and the
+    # learning-curve points and cumulative FLOPs where evaluated
+    assert [c for c, _ in seen] == [1, 2, 3, 4] and [r for _, r in seen] == run.metrics
+    assert ["flops" in r and "eval/test/dense" in r for _, r in seen] == [False, True, False, True]
+    # the event file reads back with TensorBoard's own reader and holds the run's numbers
+    events = EventAccumulator(str(tmp_path / "tb"))
+    events.Reload()
+    for name, steps in (("fb_loss/seed1", [10, 20, 30, 40]), ("eval/train/dense/seed0", [20, 40]), ("flops", [20, 40])):
+        key, seed = (name.rsplit("/seed", 1) + [None])[:2]
+        logged = [m for m in run.metrics if key in m]
+        assert [e.step for e in events.Scalars(name)] == steps
+        expected = [m[key] if seed is None else m[key][int(seed)] for m in logged]
+        np.testing.assert_allclose([e.value for e in events.Scalars(name)], expected, rtol=1e-6)
     evals = [m for m in run.metrics if "eval/train/dense" in m]
     assert [m["step"] for m in evals] == [20, 40]
     assert all(m["flops"] > 0 for m in evals) and evals[1]["flops"] == pytest.approx(2 * evals[0]["flops"])
@@ -124,6 +147,10 @@ def test_evaluate_reproduces_the_run_results(tmp_path, algo):
     protocols = "all" if algo == "fb" else "official"
     cfg = tiny_config(tmp_path, algo=algo, eval_protocols=protocols, name=f"ev-{algo}", **extra)
     run = zsbfm.train(cfg, progress=False)
+    if algo == "bfb":  # each chunk's line holds the metrics its phase computed, as strict JSON
+        encoder, fb = strict_lines(tmp_path / "runs" / cfg.run_name / "metrics.jsonl")
+        assert {"enc_mse", "enc_kl", "h_norm"} <= set(encoder) and "fb_loss" not in encoder
+        assert "fb_loss" in fb and not {"enc_mse", "enc_kl", "h_norm"} & set(fb)
     loaded = zsbfm.load(os.path.join(cfg.runs_dir, cfg.run_name))
     for split in ("train", "test"):
         again = np.asarray(zsbfm.evaluate(loaded, split=split), np.float32).mean((1, 2))

@@ -3,6 +3,7 @@
 import dataclasses
 import json
 import os
+import signal
 
 import jax
 import numpy as np
@@ -10,7 +11,7 @@ import pytest
 
 import zsbfm
 from zsbfm.train import TRACE_COUNTS, make_train, seed_keys
-from tests.conftest import tiny_config
+from tests.conftest import tiny_config, written_chunks
 
 
 def leaves(tree):
@@ -64,16 +65,24 @@ def test_same_seed_gives_identical_run(tiny_run, tmp_path):
     assert not np.allclose(leaves(run.params)[0], leaves(other.params)[0])
 
 
-def test_killed_run_resumes_to_the_same_result(tiny_run, tmp_path):
+def test_interrupted_run_resumes_to_the_same_result(tiny_run, tmp_path):
+    """SIGINT inside the run (chunk 2's callback) ends it at the next chunk boundary with
+    Interrupted (exit code 130 on the command line), chunks 1-2 written; started again, it
+    resumes there and ends bit-identical. (SIGTERM at a random moment, from outside: tests/test_guards.py.)"""
+    from zsbfm.interrupt import Interrupted
+
     run, _ = tiny_run
     cfg = dataclasses.replace(run.cfg, runs_dir=str(tmp_path))
 
-    def kill_after_two(chunk, row):
+    def interrupt_in_chunk_two(chunk, row):
         if chunk == 2:
-            raise KeyboardInterrupt
+            os.kill(os.getpid(), signal.SIGINT)
 
-    with pytest.raises(KeyboardInterrupt):
-        zsbfm.train(cfg, progress=False, callback=kill_after_two)
+    with pytest.raises(Interrupted) as e:
+        zsbfm.train(cfg, progress=False, callback=interrupt_in_chunk_two)
+    assert e.value.exit_code == 130 and str(e.value).startswith("SIGINT: stopped after chunk 2/4")
+    assert written_chunks(tmp_path / cfg.run_name) == 2
+    assert signal.getsignal(signal.SIGINT) is signal.default_int_handler  # the handlers are back
     resumed = zsbfm.train(cfg, progress=False)
     assert resumed.results["resumed_from_chunk"] == 2
     for a, b in zip(leaves(run.params), leaves(resumed.params)):
@@ -152,13 +161,20 @@ def test_presets_are_labelled_and_overrides_parse():
 def test_cli_train_runs(tmp_path, capsys):
     from zsbfm.cli import main
 
+    from tensorboard.backend.event_processing.event_accumulator import EventAccumulator
+
     main(["train", "--env", "doors", "--seeds", "1", "--runs-dir", str(tmp_path), "--name", "cli",
           "--set", "steps=10", "chunk_steps=5", "n_train_layouts=3", "episodes_per_layout=10",
           "d=8", "f_pre_hidden=16", "f_pre_out=16", "f_hidden=16", "b_hidden=16", "batch_size=16",
-          "eval_episode_len=10", "context_len=10"])
+          "eval_episode_len=10", "context_len=10", "--log", "tensorboard"])
     out = capsys.readouterr().out
     assert "test  success" in out
     assert os.path.exists(tmp_path / "cli" / "results.json")
+    events = EventAccumulator(str(tmp_path / "cli" / "tensorboard"))  # --log tensorboard
+    events.Reload()
+    losses = [json.loads(line)["fb_loss"][0] for line in open(tmp_path / "cli" / "metrics.jsonl")]
+    assert [(e.step, e.value) for e in events.Scalars("fb_loss/seed0")] == [(5, pytest.approx(losses[0])),
+                                                                           (10, pytest.approx(losses[1]))]
     with pytest.raises(SystemExit) as e:
         main(["train", "--env", "humanoid"])
     assert e.value.code == 2

@@ -1,4 +1,13 @@
-"""Command line: `python -m zsbfm {train,evaluate,collect} ...` (see --help)."""
+"""Command line: `python -m zsbfm {train,sweep,evaluate,collect} ...` (see --help).
+
+Exit codes: 0 done; 2 bad input (one line naming the value, before anything compiles);
+3 a seed went non-finite (Config.on_nonfinite="stop"); 4 the run directory is in use by
+another process (zsbfm.lock); 130 / 143 stopped by SIGINT / SIGTERM at a chunk boundary
+(zsbfm.interrupt: run the same command again to resume).
+
+The help texts name what the code accepts, read from where the code keeps it: environments
+from their registry, algorithms and preset sizes from zsbfm.names.
+"""
 
 from __future__ import annotations
 
@@ -8,24 +17,65 @@ import sys
 
 import tyro
 
+from zsbfm.envs.registry import env_names, env_spec
+from zsbfm.names import ALGOS, SIZES
 
+ALGO_NOTES = {"fb": "Forward-Backward", "bfb": "Belief-FB", "rfb": "Rotation-FB",
+              "oracle": "FB told the true context, a diagnostic", "hilp": "HILP", "lap": "Laplacian",
+              "random": "uniform actions"}
+SIZE_NOTES = {"cpu": "the default, minutes per seed on a 2-core CPU", "long": "cpu with more updates",
+              "paper": "the paper's Table 4 sizes, for a GPU"}
+
+
+def _choices(names, notes: dict) -> str:
+    return " | ".join(f"{n} ({notes[n]})" if notes.get(n) else n for n in names)
+
+
+def _sizes_help() -> str:
+    """Every preset size, and the environments that have it when not all do."""
+    parts = []
+    for size in SIZES:
+        envs = [e for e in env_names() if size in env_spec(e).presets]
+        where = "" if len(envs) == len(env_names()) else f"; {', '.join(envs)} only"
+        note = SIZE_NOTES.get(size, "")
+        parts.append(f"{size} ({note}{where})" if note or where else size)
+    return " | ".join(parts)
+
+
+def _shared_data_envs() -> str:
+    return ", ".join(e for e in env_names() if env_spec(e).shares_data) or "none"
+
+
+def _with_names(fn):
+    """fn's docstring with {envs}, {algos}, {sizes} and {shared_data_envs} filled in from
+    the code (what tyro shows as --help)."""
+    names = {"{envs}": " | ".join(env_names()), "{algos}": _choices(ALGOS, ALGO_NOTES),
+             "{sizes}": _sizes_help(), "{shared_data_envs}": _shared_data_envs()}
+    for placeholder, text in names.items():
+        fn.__doc__ = fn.__doc__.replace(placeholder, text)
+    return fn
+
+
+@_with_names
 def train(env: str = "fourrooms", algo: str = "fb", seeds: int = 3, size: str = "cpu",
           name: str = "", runs_dir: str = "runs", resume: bool = True, dataset: str = "",
-          set: tuple[str, ...] = (), coordinator: str = "", num_processes: int = 0,
-          process_id: int = -1) -> None:
+          set: tuple[str, ...] = (), log: tuple[str, ...] = (), coordinator: str = "",
+          num_processes: int = 0, process_id: int = -1) -> None:
     """Train all seeds of a preset together (vmapped), evaluate on train and test layouts.
 
     Args:
-        env: environment: doors | fourrooms | pointmass | antwind.
-        algo: algorithm: fb | bfb | rfb | oracle | hilp | lap | random.
+        env: environment: {envs}.
+        algo: algorithm: {algos}.
         seeds: number of seeds, trained together with jax.vmap.
-        size: preset sizes: cpu (default, for a 2-core machine) | paper (the paper's GPU sizes).
+        size: preset sizes: {sizes}.
         name: run name (default <env>-<algo>-<size>); output goes to <runs_dir>/<name>/.
         runs_dir: where runs are written.
         resume: continue from this run's newest checkpoint (--no-resume: start afresh).
         dataset: train on a saved dataset (.npz from `python -m zsbfm collect`, or your own
             with the arrays obs, action, context_id) instead of collecting one per seed.
         set: Config overrides as field=value, e.g. --set steps=2000 lr=1e-3 f_hidden=512,512.
+        log: also log every chunk's losses (and learning curve) to: tensorboard (event files in
+            <run>/tensorboard/) | wandb (needs `pip install 'zsbfm[wandb]'`).
         coordinator: multi-process run: HOST:PORT of process 0 (default $JAX_COORDINATOR_ADDRESS);
             run the same command on every host with its own --process-id.
         num_processes: multi-process run: number of processes (default $JAX_NUM_PROCESSES).
@@ -33,16 +83,28 @@ def train(env: str = "fourrooms", algo: str = "fb", seeds: int = 3, size: str = 
     """
     init_distributed(coordinator, num_processes, process_id)  # before anything touches a device
     from zsbfm.config import Config
+    from zsbfm.loggers import as_callback
     from zsbfm.train import train as run_train
 
     cfg = Config.preset(env, algo, size, num_seeds=seeds, name=name, runs_dir=runs_dir).with_overrides(set)
     if dataset:
         cfg = cfg.replace(dataset=dataset)
-    run = run_train(cfg, resume=resume)
     import jax
 
+    with _loggers(log, cfg) as loggers:
+        run = run_train(cfg, resume=resume, callback=as_callback(loggers))
     if jax.process_index() == 0:
         _print_results(run)
+
+
+def _loggers(kinds, cfg):
+    """The --log loggers of cfg's run directory (process 0 alone logs a multi-process run)."""
+    import jax
+
+    from zsbfm.loggers import make_loggers
+
+    kinds = kinds if jax.process_index() == 0 else ()
+    return make_loggers(kinds, os.path.join(cfg.runs_dir, cfg.run_name), cfg.run_name, cfg.to_dict())
 
 
 def init_distributed(coordinator: str = "", num_processes: int = 0, process_id: int = -1) -> bool:
@@ -93,14 +155,24 @@ def evaluate(path: tyro.conf.Positional[str], split: str = "test", protocol: str
                       f"{metric}_per_seed": score.round(4).tolist(), "mean": round(float(score.mean()), 4)}))
 
 
+@_with_names
 def collect(env: str = "fourrooms", n_train: int = 0, episodes_per_layout: int = 0,
             seed: int = 0, out: str = "") -> None:
-    """Collect the behaviour-policy dataset on the train layouts and save it as .npz.
+    """Collect the behaviour policy's episodes in the train contexts and save them as a dataset.
 
-    n_train / episodes_per_layout: 0 takes the environment's CPU preset. An env whose data
-    is shared by every seed (EnvSpec.shares_data: AntWind) trains its behaviour expert first
-    (cached), then records and caches the dataset under the preset's data_dir, where
-    `train --env <env>` reads it (out is ignored)."""
+    Most environments' data is collected afresh for every seed during training; this saves
+    one such dataset as an .npz file, for `train --dataset`. Where the data is one dataset
+    shared by every seed ({shared_data_envs}: recorded from a trained behaviour expert), this
+    trains or loads the expert, records the dataset and caches it under the preset's data_dir,
+    where `train --env <env>` reads it; --out is then ignored.
+
+    Args:
+        env: environment: {envs}.
+        n_train: train contexts (layouts, mazes); 0: the environment's CPU preset.
+        episodes_per_layout: episodes in each train context; 0: the environment's CPU preset.
+        seed: the key of the collection.
+        out: the .npz file (default datasets/<env>-<n_train>x<episodes>-seed<seed>.npz).
+    """
     import time
 
     import jax
@@ -126,31 +198,36 @@ def collect(env: str = "fourrooms", n_train: int = 0, episodes_per_layout: int =
     print(f"{ds.num_transitions} transitions in {time.time() - t:.2f}s -> {out}")
 
 
+@_with_names
 def sweep(env: str = "fourrooms", algo: str = "fb", seeds: int = 2, size: str = "cpu",
           name: str = "", runs_dir: str = "runs", resume: bool = True,
-          grid: tuple[str, ...] = (), set: tuple[str, ...] = ()) -> None:
+          grid: tuple[str, ...] = (), set: tuple[str, ...] = (), log: tuple[str, ...] = ()) -> None:
     """Train every combination of a grid of settings x seeds, vmapped in one compiled program
     per group of shape-changing values; writes runs/<name>/sweep.{json,md,png}.
 
     Args:
-        env: environment: doors | fourrooms | pointmass | antwind.
-        algo: algorithm: fb | bfb | rfb | oracle | hilp | lap | random.
+        env: environment: {envs}.
+        algo: algorithm: {algos}.
         seeds: seeds per grid point.
-        size: preset sizes: cpu | paper.
+        size: preset sizes: {sizes}.
         name: sweep name (default sweep-<env>-<algo>); output in <runs_dir>/<name>/.
         runs_dir: where runs are written.
         resume: continue from this sweep's checkpoints (--no-resume: start afresh).
         grid: field=v1,v2,... per swept field, e.g. --grid lr=1e-4,3e-4 tau=0.01,0.05;
             a tuple field's alternatives are separated by '/', e.g. f_hidden=256/512,512.
         set: Config overrides applied to every point, as in train.
+        log: also log every point's chunks to: tensorboard (<sweep>/tensorboard/point<j>/) | wandb.
     """
     from zsbfm.config import Config
+    from zsbfm.loggers import as_callback
     from zsbfm.sweep import parse_grid
     from zsbfm.sweep import sweep as run_sweep
 
     cfg = Config.preset(env, algo, size, num_seeds=seeds, name=name or f"sweep-{env}-{algo}",
                         runs_dir=runs_dir).with_overrides(set)
-    result = run_sweep(cfg, parse_grid(cfg, grid), resume=resume)
+    parsed = parse_grid(cfg, grid)
+    with _loggers(log, cfg) as loggers:
+        result = run_sweep(cfg, parsed, resume=resume, callback=as_callback(loggers))
     print(result.table())
     print(f"->  {result.path}")
 
@@ -159,16 +236,24 @@ def _print_results(run) -> None:
     import numpy as np
 
     r = run.results
+    kept = lambda values: np.asarray([x for x in values if x is not None], float)  # noqa: E731  (dropped seeds: None)
     for split in ("train", "test"):
-        v = np.asarray(r[split])
-        print(f"{split:5s} {r.get('metric', 'success')}: {v.mean():.3f} +- {v.std():.3f}  per seed {np.round(v, 3).tolist()}")
+        v = kept(r[split])
+        per_seed = [None if x is None else round(x, 3) for x in r[split]]
+        print(f"{split:5s} {r.get('metric', 'success')}: {v.mean():.3f} +- {v.std():.3f}  per seed {per_seed}")
     for protocol, scores in r.get("protocols", {}).items():
         print(f"  protocol {protocol:12s} " + "  ".join(
-            f"{split} {np.mean(v):.3f}" for split, v in scores.items()))
+            f"{split} {kept(v).mean():.3f}" for split, v in scores.items()))
+    for d in r.get("dropped", []):
+        print(f"seed {d['seed']} dropped: non-finite in chunk {d['chunk']}")
     print(f"wall time: {r['wall_time_s']}  ->  {os.path.join(run.cfg.runs_dir, run.cfg.run_name)}")
 
 
 def main(argv=None) -> None:
+    from zsbfm.interrupt import Interrupted
+    from zsbfm.lock import RunLocked
+    from zsbfm.nonfinite import NonFiniteError
+
     try:
         tyro.extras.subcommand_cli_from_dict(
             {"train": train, "sweep": sweep, "evaluate": evaluate, "collect": collect}, args=argv,
@@ -176,3 +261,12 @@ def main(argv=None) -> None:
     except (ValueError, FileNotFoundError) as e:  # bad input: one clear line, no traceback
         print(f"error: {e}", file=sys.stderr)
         sys.exit(2)
+    except NonFiniteError as e:
+        print(f"error: {e}", file=sys.stderr)
+        sys.exit(3)
+    except RunLocked as e:
+        print(f"error: {e}", file=sys.stderr)
+        sys.exit(4)
+    except Interrupted as e:  # everything up to the last chunk is written
+        print(f"interrupted: {e}", file=sys.stderr)
+        sys.exit(e.exit_code)

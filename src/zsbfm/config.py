@@ -130,6 +130,11 @@ class Config:
     steps: int = 10_000          # gradient steps per seed (belief algos: enc_steps more)
     chunk_steps: int = 1_000     # steps per compiled chunk (progress/metrics/checkpoint)
     checkpoint: bool = True      # write an orbax checkpoint after every chunk
+    # a seed whose losses or parameters go non-finite (NaN, inf): "stop" the run with a one-line
+    # error, its last finite checkpoint kept | "drop" the seed, marked in metrics.jsonl,
+    # results.json and the plots, and train the others on (zsbfm/nonfinite.py). A policy, not
+    # part of the run: a stopped run may resume with the other value
+    on_nonfinite: str = "stop"
 
     # --- devices (placement only: results equal up to float summation order) --------------
     data_parallel: int = 1       # size of the "data" mesh axis each seed's batch is split over
@@ -176,6 +181,8 @@ class Config:
                 f"at most {spec.max_train} for {self.env} (the rest of its contexts are held out for test)")
         if not isinstance(self.eval_every, int) or isinstance(self.eval_every, bool) or self.eval_every < 0:
             bad("eval_every", self.eval_every, "a non-negative integer (chunks; 0: evaluate only at the end)")
+        if self.on_nonfinite not in ON_NONFINITE:
+            bad("on_nonfinite", self.on_nonfinite, f"one of {ON_NONFINITE}")
         if self.eval_protocols not in ("all", "official"):
             bad("eval_protocols", self.eval_protocols, "'all' or 'official'")
         if self.oracle_context not in ("id", "walls"):

@@ -24,24 +24,34 @@ METRIC_NOTES = {
     "fb_diag": "-mean_i F(s_i,a_i)^T B(s'_i)",
     "M_head_gap": "E|Mbar_1 - Mbar_2| = g; min target: M_offdiag\n-> (1 - gamma g / 2) / (1 - gamma)",
 }
-NOT_METRICS = ("chunk", "step", "seconds", "wall_s", "flops")
+NOT_METRICS = ("chunk", "step", "seconds", "wall_s", "flops", "dropped")
+
+
+def dropped_seeds(run) -> dict:
+    """{seed: chunk} of the seeds a run dropped for going non-finite (Config.on_nonfinite)."""
+    return {d["seed"]: d["chunk"] for d in run.results.get("dropped", [])}
 
 
 def plot_metrics(run, path):
-    """One panel per logged training metric against gradient steps, one line per seed."""
+    """One panel per logged training metric against gradient steps, one line per seed (each
+    metric over the chunks that computed it: a belief run's phases log different ones); a
+    dropped seed's line is dashed and ends where it went non-finite."""
     plt = _plt()
     rows = run.metrics
-    keys = [k for k in rows[0] if k not in NOT_METRICS and not k.startswith("eval/")] if rows else []
+    keys = list(dict.fromkeys(k for r in rows for k in r if k not in NOT_METRICS and not k.startswith("eval/")))
     if not keys:
         return None
+    dropped = dropped_seeds(run)
     cols = min(4, len(keys))
     nrows = -(-len(keys) // cols)
     fig, axes = plt.subplots(nrows, cols, figsize=(3.6 * cols, 2.8 * nrows), squeeze=False)
-    steps = [r["step"] for r in rows]
     for ax, k in zip(axes.flat, keys):
-        values = np.asarray([r[k] for r in rows], float).reshape(len(rows), -1)
+        logged = [r for r in rows if k in r]
+        steps = [r["step"] for r in logged]
+        values = np.asarray([r[k] for r in logged], float).reshape(len(logged), -1)  # None -> NaN
         for i in range(values.shape[1]):
-            ax.plot(steps, values[:, i], label=f"seed {i}")
+            label = f"seed {i}" + (f" (dropped, chunk {dropped[i]})" if i in dropped else "")
+            ax.plot(steps, values[:, i], label=label, linestyle="--" if i in dropped else "-")
         ax.set_title(k + ("\n" + METRIC_NOTES[k] if k in METRIC_NOTES else ""), fontsize=8)
         ax.set_xlabel("update", fontsize=8)
     axes.flat[0].legend(fontsize=7)
@@ -78,7 +88,9 @@ def plot_curves(lines: dict, path, title: str = ""):
         for label, (steps, flops, c) in data.items():
             if k not in c:
                 continue
-            mean, lo, hi = c[k].mean(1), c[k].min(1), c[k].max(1)
+            if not np.isfinite(c[k]).any(1).all():  # every seed of a point dropped
+                continue
+            mean, lo, hi = np.nanmean(c[k], 1), np.nanmin(c[k], 1), np.nanmax(c[k], 1)  # dropped seeds: None
             for ax, x in ((row[0], steps), (row[1], flops)):
                 (line,) = ax.plot(x, mean, marker=".", label=label)
                 ax.fill_between(x, lo, hi, color=line.get_color(), alpha=0.15)
@@ -113,9 +125,11 @@ def plot_sweep(result, root):
     for ax, p in zip(axes[0], protos):
         for j, (split, color) in enumerate((("train", "tab:blue"), ("test", "tab:orange"))):
             v = [np.asarray(pt["protocols"].get(p, {}).get(split, [np.nan]), float) for pt in points]
-            ax.bar(x + (j - 0.5) * 0.4, [a.mean() for a in v], 0.4, yerr=[a.std() for a in v],
-                   color=color, capsize=3, label=split)
-        ax.set_xticks(x, [pt["label"] for pt in points], rotation=60, ha="right", fontsize=7)
+            v = [a[np.isfinite(a)] for a in v]  # a dropped seed's score is None
+            ax.bar(x + (j - 0.5) * 0.4, [a.mean() if a.size else 0.0 for a in v], 0.4,
+                   yerr=[a.std() if a.size else 0.0 for a in v], color=color, capsize=3, label=split)
+        ax.set_xticks(x, [pt["label"] + (f"\n(seeds {pt['dropped']} dropped)" if pt.get("dropped") else "")
+                          for pt in points], rotation=60, ha="right", fontsize=7)
         ax.set_title(f"{p} protocol", fontsize=9)
         ax.set_ylabel("episode return" if p == "return" else "success rate")
     axes[0, 0].legend(fontsize=7)
@@ -131,7 +145,8 @@ def plot_success(run, path):
     """Mean +- std over seeds of the success rate (or return) on train and test contexts."""
     plt = _plt()
     splits = ("train", "test")
-    vals = [np.asarray(run.results[s]) for s in splits]
+    dropped = dropped_seeds(run)
+    vals = [np.asarray([v for v in run.results[s] if v is not None], float) for s in splits]
     fig, ax = plt.subplots(figsize=(3.6, 3.0))
     ax.bar(splits, [v.mean() for v in vals], yerr=[v.std() for v in vals], capsize=4,
            color=["tab:blue", "tab:orange"])
@@ -142,7 +157,8 @@ def plot_success(run, path):
     else:
         ax.set_ylim(0, 1)
         ax.set_ylabel("success rate")
-    ax.set_title(f"{run.cfg.env} {run.cfg.algo} ({len(vals[0])} seeds)", fontsize=9)
+    ax.set_title(f"{run.cfg.env} {run.cfg.algo} ({len(vals[0])} seeds"
+                 + (f"; seeds {sorted(dropped)} dropped: non-finite" if dropped else "") + ")", fontsize=9)
     fig.tight_layout()
     fig.savefig(path, dpi=100)
     plt.close(fig)
@@ -198,4 +214,6 @@ def plot_run(run, run_dir):
     plot_metrics(run, os.path.join(run_dir, "metrics.png"))
     plot_curves({run.cfg.run_name: run.metrics}, os.path.join(run_dir, "curves.png"))
     plot_success(run, os.path.join(run_dir, "success.png"))
-    plot_value_maps(run, os.path.join(run_dir, "value_maps.png"))
+    kept = [i for i in range(len(run.results["train"])) if i not in dropped_seeds(run)]
+    if kept:
+        plot_value_maps(run, os.path.join(run_dir, "value_maps.png"), seed=kept[0])

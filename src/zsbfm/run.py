@@ -5,6 +5,7 @@ Layout of a run directory (`runs/<name>/` by default):
     config.json     the Config
     results.json    success per split and seed, per layout, per goal, wall times
     metrics.jsonl   one line per compiled chunk: step and each metric per seed
+    .lock           while a process trains it (zsbfm.lock)
     params/         orbax checkpoint of the agent's evaluation parameters (leading axis = seeds)
     checkpoints/    orbax checkpoints of the full training state, for resuming
     *.png           plots
@@ -14,6 +15,7 @@ from __future__ import annotations
 
 import dataclasses
 import json
+import math
 import os
 from typing import Any
 
@@ -21,6 +23,27 @@ import jax
 import orbax.checkpoint as ocp
 
 from zsbfm.config import Config
+
+
+def jsonable(obj):
+    """obj with every non-finite float replaced by None, so it writes as strict JSON (a NaN
+    written as the bare token `NaN` is not JSON; readers that follow the standard reject it)."""
+    if isinstance(obj, float):
+        return obj if math.isfinite(obj) else None
+    if isinstance(obj, dict):
+        return {k: jsonable(v) for k, v in obj.items()}
+    if isinstance(obj, (list, tuple)):
+        return [jsonable(v) for v in obj]
+    return obj
+
+
+def write_text(path: str, text: str) -> None:
+    """Write a whole file atomically: a reader, or a run killed meanwhile, sees the old
+    content or the new one, never half of it."""
+    tmp = f"{path}.tmp-{os.getpid()}"
+    with open(tmp, "w") as f:
+        f.write(text)
+    os.replace(tmp, path)
 
 
 @dataclasses.dataclass
@@ -42,13 +65,10 @@ class Run:
         path = os.path.abspath(path or os.path.join(self.cfg.runs_dir, self.cfg.run_name))
         os.makedirs(path, exist_ok=True)
         if jax.process_index() == 0:
-            with open(os.path.join(path, "config.json"), "w") as f:
-                f.write(self.cfg.to_json())
-            with open(os.path.join(path, "results.json"), "w") as f:
-                json.dump(self.results, f, indent=2)
-            with open(os.path.join(path, "metrics.jsonl"), "w") as f:
-                for row in self.metrics:
-                    f.write(json.dumps(row) + "\n")
+            write_text(os.path.join(path, "config.json"), self.cfg.to_json())
+            write_text(os.path.join(path, "results.json"), json.dumps(jsonable(self.results), indent=2, allow_nan=False))
+            write_text(os.path.join(path, "metrics.jsonl"),
+                       "".join(json.dumps(jsonable(row), allow_nan=False) + "\n" for row in self.metrics))
         params_dir = os.path.join(path, "params")
         ckptr = ocp.StandardCheckpointer()
         ckptr.save(params_dir, self.params, force=True)

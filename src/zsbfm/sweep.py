@@ -16,21 +16,30 @@ every protocol's score per seed, and its learning curve if cfg.eval_every > 0), 
 each group trains in runs/<name>/g<i>/, checkpointed and resumable like a run, and each
 point is saved as a plain run in runs/<name>/points/<j>/ (zsbfm.load, zsbfm.evaluate and
 the diagnostics in experiments/fb_diagnostics work on it).
+
+Like a run, a sweep holds its directory (zsbfm.lock), stops at a chunk boundary on SIGINT /
+SIGTERM (zsbfm.interrupt), and stops or drops rows that go non-finite (Config.on_nonfinite):
+a dropped row marks its point ("dropped" in sweep.json, the table and the plots).
 """
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import itertools
 import json
 import os
-from typing import Any
+from typing import Any, Callable
 
 import jax
 import numpy as np
 
 from zsbfm.config import SWEEPABLE, Config
+from zsbfm.interrupt import StopSignals
+from zsbfm.keys import seed_keys
+from zsbfm.lock import RunDirLock
 from zsbfm.run import Run
+from zsbfm.train import final_results, make_train, prepare_run_dir, run_loop
 
 
 def parse_grid(cfg: Config, items: list[str] | tuple[str, ...]) -> dict[str, list]:
@@ -82,23 +91,27 @@ class SweepResult:
         head = ["setting"] + [f"{split} {p}" for p in protos for split in ("train", "test")]
         lines = ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
         for pt in self.points:
-            cells = [pt["label"]]
+            cells = [pt["label"] + (f" (seeds {pt['dropped']} dropped)" if pt.get("dropped") else "")]
             for p in protos:
                 for split in ("train", "test"):
                     v = np.asarray(pt["protocols"].get(p, {}).get(split, [np.nan]), float)
-                    cells.append(f"{v.mean():.3f} +- {v.std():.3f}")
+                    v = v[np.isfinite(v)]  # a dropped seed's score is None
+                    cells.append(f"{v.mean():.3f} +- {v.std():.3f}" if v.size else "dropped")
             lines.append("| " + " | ".join(cells) + " |")
         return "\n".join(lines)
 
 
-def sweep(cfg: Config, grid: dict[str, list], resume: bool = True, progress: bool = True) -> SweepResult:
+def sweep(cfg: Config, grid: dict[str, list], resume: bool = True, progress: bool = True,
+          callback: Callable[[int, dict], None] | None = None) -> SweepResult:
     """Train every point of `grid` ({field: [values]}) x cfg.num_seeds seeds; see the module
     docstring. Seed i of every point uses the key of seed i of a plain run of that point's
     Config, so a point's scores equal those of `zsbfm.train` on it (up to float summation
-    order)."""
-    from zsbfm.keys import seed_keys
-    from zsbfm.train import final_results, make_train, prepare_run_dir, run_loop
+    order).
 
+    callback: called on the host after each chunk of each point as callback(chunk, row), with
+    the point's part of the chunk's metrics row (as `zsbfm.train` passes it: each loss
+    [per seed], and when evaluated "eval/<split>/<protocol>" [per seed] and "flops") plus
+    "point" (its index in SweepResult.points) and "label" (its settings)."""
     unknown = sorted(set(grid) - {f.name for f in dataclasses.fields(Config)})
     if unknown:
         raise ValueError(f"unknown Config fields {unknown} in the grid")
@@ -114,9 +127,20 @@ def sweep(cfg: Config, grid: dict[str, list], resume: bool = True, progress: boo
             dataclasses.replace(cfg_g, **point)
         plans.append((group, cfg_g))
     root = os.path.abspath(os.path.join(cfg.runs_dir, cfg.run_name))
-    os.makedirs(root, exist_ok=True)
-    spec = {"grid": {k: [list(v) if isinstance(v, tuple) else v for v in vals] for k, vals in grid.items()}}
+    with RunDirLock(root) if jax.process_index() == 0 else contextlib.nullcontext(), StopSignals() as stop:
+        return _sweep(cfg, grid, plans, scalar, scalar_points, root, resume, progress, callback, stop)
 
+
+def _point_row(row: dict, rows: slice, n_rows: int, point: int, label: str) -> dict:
+    """The part of a sweep group's metrics row that belongs to one point (its seeds' rows)."""
+    out = {k: (v[rows] if isinstance(v, list) and len(v) == n_rows else v) for k, v in row.items()
+           if k != "dropped"}
+    dropped = [i - rows.start for i in row.get("dropped", []) if rows.start <= i < rows.stop]
+    return {**out, **({"dropped": dropped} if dropped else {}), "point": point, "label": label}
+
+
+def _sweep(cfg, grid, plans, scalar, scalar_points, root, resume, progress, callback, stop) -> SweepResult:
+    spec = {"grid": {k: [list(v) if isinstance(v, tuple) else v for v in vals] for k, vals in grid.items()}}
     points = []
     for gi, (group, cfg_g) in enumerate(plans):
         run_dir = prepare_run_dir(cfg_g, resume, extra=dict(spec, group=_jsonable(group)))
@@ -125,7 +149,15 @@ def sweep(cfg: Config, grid: dict[str, list], resume: bool = True, progress: boo
         keys = np.tile(np.asarray(seed_keys(cfg_g)), (n, 1))                # row = point * S + seed
         hp = {k: np.repeat(np.asarray([p[k] for p in scalar_points], np.float32), S) for k in scalar}
         label = f"sweep {cfg.run_name} group {gi + 1}/{len(plans)} ({n} points x {S} seeds)"
-        loop = run_loop(trainer, run_dir, keys, hp, resume, progress, label=label)
+        labels = [_label({**group, **point}) for point in scalar_points]
+        first = len(points)  # the index of this group's first point
+
+        def point_rows(chunk, row):
+            for pi in range(n):
+                callback(chunk, _point_row(row, slice(pi * S, (pi + 1) * S), n * S, first + pi, labels[pi]))
+
+        loop = run_loop(trainer, run_dir, keys, hp, resume, progress, callback=point_rows if callback else None,
+                        label=label, stop=stop, row_name=lambda i: f"point {first + i // S} ({labels[i // S]}) seed {i % S}")
         res = final_results(trainer, loop)
         params = jax.device_get(trainer.agent.eval_params(loop.carry.agent_state))
         for pi, point in enumerate(scalar_points):
@@ -136,7 +168,12 @@ def sweep(cfg: Config, grid: dict[str, list], resume: bool = True, progress: boo
             point_results = {k: (v[rows] if k in ("train", "test") else v) for k, v in res.items()}
             point_results["detail"] = {sp: {k: v[rows] for k, v in d.items()} for sp, d in res["detail"].items()}
             point_results["protocols"] = {p: {sp: v[rows] for sp, v in d.items()} for p, d in res["protocols"].items()}
-            point_metrics = [{k: (v[rows] if isinstance(v, list) else v) for k, v in m.items()} for m in loop.metrics]
+            dropped = [i - rows.start for i in sorted(loop.dropped) if rows.start <= i < rows.stop]
+            point_results.pop("dropped", None)
+            if dropped:
+                point_results["dropped"] = [{"seed": i, "chunk": loop.dropped[rows.start + i]} for i in dropped]
+            point_metrics = [{k: v for k, v in _point_row(m, rows, n * S, len(points), "").items()
+                              if k not in ("point", "label")} for m in loop.metrics]
             Run(cfg=point_cfg, params=jax.tree_util.tree_map(lambda x: x[rows], params),
                 results=point_results, metrics=point_metrics).save(os.path.join(root, "points", str(len(points))))
             curve = [{k: (v[rows] if isinstance(v, list) and k.startswith("eval/") else v)
@@ -145,7 +182,8 @@ def sweep(cfg: Config, grid: dict[str, list], resume: bool = True, progress: boo
             points.append({"label": _label(settings), "settings": _jsonable(settings), "group": gi,
                            "train": res["train"][rows], "test": res["test"][rows],
                            "protocols": {p: {s: v[rows] for s, v in d.items()} for p, d in res["protocols"].items()},
-                           "curve": curve, "train_seconds_group": round(loop.train_seconds, 1)})
+                           "curve": curve, "train_seconds_group": round(loop.train_seconds, 1),
+                           **({"dropped": dropped} if dropped else {})})
     result = SweepResult(cfg=cfg, grid=grid, points=points, path=root)
     with open(os.path.join(root, "sweep.json"), "w") as f:
         json.dump({**spec, "config": cfg.to_dict(), "points": points}, f, indent=1)

@@ -20,11 +20,13 @@ the chunk under the mesh so the hook sees it). With one device it is the plain p
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import functools
 import json
 import os
 import shutil
+import sys
 import time
 from typing import Any, Callable
 
@@ -43,8 +45,12 @@ from zsbfm.data.sources import shared_dataset
 from zsbfm.data.sources import make_env_for
 from zsbfm.evaluate import (default_goals, evaluate_params, evaluate_protocol, metric_of, protocol_score,
                             protocols_of, reward_states, split_results)
+from zsbfm.agents.base import chunk_metrics
+from zsbfm.interrupt import StopSignals
 from zsbfm.keys import eval_key, seed_keys  # noqa: F401  (zsbfm.train.seed_keys: the seeds' keys)
-from zsbfm.run import Run
+from zsbfm.lock import LOCK_NAME, RunDirLock
+from zsbfm.nonfinite import NonFiniteError, all_finite, describe, keep_finite
+from zsbfm.run import Run, jsonable, write_text
 
 
 @struct.dataclass
@@ -69,7 +75,7 @@ class Trainer:
     init: Callable           # key -> TrainCarry
     collect_data: Callable   # TrainCarry -> Dataset (the shared dataset, or collected from the carry's data key)
     shared: Any              # the Dataset every seed shares (zsbfm.data.sources), or None
-    run_chunk: Callable      # (TrainCarry, Dataset, chunk index, hp) -> (TrainCarry, chunk-mean metrics)
+    run_chunk: Callable      # (TrainCarry, Dataset, chunk index, hp) -> (TrainCarry, chunk-mean metrics + "finite")
     evaluate: Callable       # (TrainCarry, Dataset, eval key, hp) -> {"train": scores [n_ctx, n_goals], "test": ...}
     evaluate_protocols: Callable  # (TrainCarry, Dataset, eval key, hp) -> {"<split>/<protocol>": score}
     train: Callable          # key -> (TrainCarry, metrics [num_chunks, ...], evaluation)
@@ -110,14 +116,20 @@ def make_train(cfg: Config, progress: bool = False) -> Trainer:
     def run_chunk(carry, dataset, chunk, hp=None):
         """cfg.chunk_steps updates. `chunk` is the chunk index, shared by all seeds: under
         vmap it stays unbatched, so agents can branch on the global step with a real
-        lax.cond (a batched predicate would turn the cond into a select of both branches)."""
+        lax.cond (a batched predicate would turn the cond into a select of both branches).
+
+        The metrics are the chunk means, plus "finite": whether they and the whole agent
+        state are finite (zsbfm.nonfinite); a chunk that was not keeps the state it started
+        from, so a non-finite state never reaches a checkpoint."""
         TRACE_COUNTS["run_chunk"] += 1
         key, chunk_key = jax.random.split(carry.key)
         state, metrics = agent_for(hp).run_steps(carry.agent_state, dataset,
                                                  jax.random.split(chunk_key, cfg.chunk_steps),
                                                  chunk * cfg.chunk_steps)
         metrics = jax.tree_util.tree_map(jnp.mean, metrics)
-        return carry.replace(agent_state=state, key=key, chunk=carry.chunk + 1), metrics
+        finite = all_finite((metrics, state))
+        state = keep_finite(finite, state, carry.agent_state)
+        return carry.replace(agent_state=state, key=key, chunk=carry.chunk + 1), {**metrics, "finite": finite}
 
     def split_keys(key, dataset):
         k_train, k_test, k_states = jax.random.split(key, 3)
@@ -240,8 +252,13 @@ def _read_metrics(run_dir: str, upto_chunk: int) -> list[dict]:
     path = os.path.join(run_dir, "metrics.jsonl")
     if not os.path.exists(path):
         return []
+    rows = []
     with open(path) as f:
-        rows = [json.loads(line) for line in f if line.strip()]
+        for line in f:
+            try:
+                rows.append(json.loads(line))
+            except json.JSONDecodeError:  # a line cut short by a hard kill: its chunk is redone
+                break
     return [r for r in rows if r["chunk"] <= upto_chunk]
 
 
@@ -274,16 +291,20 @@ def prepare_run_dir(cfg: Config, resume: bool, extra: dict | None = None) -> str
     cfg_path = os.path.join(run_dir, "config.json")
     primary = jax.process_index() == 0  # writes the run's files (multi-process runs)
     if os.path.exists(cfg_path):
-        with open(cfg_path) as f:  # data_parallel is placement: a run may resume with another
-            old = dataclasses.replace(Config.from_dict(json.load(f)), data_parallel=cfg.data_parallel)
+        with open(cfg_path) as f:  # placement and policy: a run may resume with other values
+            old = dataclasses.replace(Config.from_dict(json.load(f)), data_parallel=cfg.data_parallel,
+                                      on_nonfinite=cfg.on_nonfinite)
         old_extra = None
         if os.path.exists(os.path.join(run_dir, "sweep.json")):
             with open(os.path.join(run_dir, "sweep.json")) as f:
                 old_extra = json.load(f).get("grid")
         if not resume:
             _barrier("zsbfm: config read")
-            if primary:
-                shutil.rmtree(run_dir)
+            if primary:  # everything but the lock this run holds (zsbfm.lock)
+                for entry in os.listdir(run_dir):
+                    path = os.path.join(run_dir, entry)
+                    if entry != LOCK_NAME:
+                        shutil.rmtree(path) if os.path.isdir(path) else os.remove(path)
         elif old != cfg or (extra or {}).get("grid") != old_extra:
             diff = {k: (v, getattr(cfg, k)) for k, v in old.to_dict().items() if getattr(cfg, k) != v}
             if (extra or {}).get("grid") != old_extra:
@@ -292,8 +313,7 @@ def prepare_run_dir(cfg: Config, resume: bool, extra: dict | None = None) -> str
                              "name (Config.name / --name), or start over (resume=False / --no-resume)")
     os.makedirs(run_dir, exist_ok=True)
     if primary:
-        with open(cfg_path, "w") as f:
-            f.write(cfg.to_json())
+        write_text(cfg_path, cfg.to_json())
         if extra is not None:
             with open(os.path.join(run_dir, "sweep.json"), "w") as f:
                 json.dump(extra, f, indent=2)
@@ -304,7 +324,8 @@ def prepare_run_dir(cfg: Config, resume: bool, extra: dict | None = None) -> str
 @dataclasses.dataclass
 class LoopResult:
     """What `run_loop` leaves: the final carry (rows on `shard`), the dataset, every chunk's
-    metrics row, the chunk it resumed from, and the training wall time of this call."""
+    metrics row, the chunk it resumed from, the training wall time of this call, and the
+    rows dropped for going non-finite ({row: chunk}, Config.on_nonfinite="drop")."""
 
     carry: Any
     dataset: Any
@@ -315,18 +336,34 @@ class LoopResult:
     eval_fn: Callable
     keys: jax.Array
     hp: dict
+    dropped: dict = dataclasses.field(default_factory=dict)
+
+
+def _blank_rows(row: dict, rows: int, blank) -> dict:
+    """row with the entries of the rows in `blank` set to None in every per-row list."""
+    return {k: [None if i in blank else x for i, x in enumerate(v)] if isinstance(v, list) and len(v) == rows
+            else v for k, v in row.items()}
 
 
 def run_loop(trainer: Trainer, run_dir: str, keys, hp: dict, resume: bool, progress: bool,
-             callback: Callable[[int, dict], None] | None = None, label: str = "") -> LoopResult:
+             callback: Callable[[int, dict], None] | None = None, label: str = "",
+             stop: StopSignals | None = None, row_name: Callable[[int], str] | None = None) -> LoopResult:
     """Train the rows of `keys` (one seed key per row) with their settings `hp` ({field:
     [rows]}, {} for cfg's own), one compiled chunk at a time, resuming from run_dir's newest
-    checkpoint. Between chunks: metrics.jsonl, a checkpoint, progress, and every
-    cfg.eval_every chunks a learning-curve evaluation (`Trainer.evaluate_protocols`,
+    checkpoint. Between chunks: metrics.jsonl, a checkpoint, progress, callback(chunk, row),
+    and every cfg.eval_every chunks a learning-curve evaluation (`Trainer.evaluate_protocols`,
     compiled once) logged as "eval/<split>/<protocol>" with the update count, wall time and
-    cumulative FLOPs (`update_flops` x updates)."""
+    cumulative FLOPs (`update_flops` x updates).
+
+    A metrics row holds the metrics the chunk's phase computed (`chunk_metrics`), one value
+    per row, strict JSON (no NaN). A row whose chunk went non-finite is handled by
+    cfg.on_nonfinite (zsbfm.nonfinite): "stop" raises NonFiniteError before anything of
+    that chunk is written; "drop" lists it under "dropped" and blanks its values (None)
+    from then on. `stop` defers SIGINT / SIGTERM to the next chunk boundary (zsbfm.interrupt;
+    default: its own for the loop). row_name(i) names row i in messages ("seed i")."""
     cfg = trainer.cfg
     rows = int(np.asarray(keys).shape[0])
+    row_name = row_name or (lambda i: f"seed {i}")
     primary = jax.process_index() == 0
     t0 = time.time()
     shard = seed_sharding(rows, data_parallel=cfg.data_parallel)
@@ -339,6 +376,10 @@ def run_loop(trainer: Trainer, run_dir: str, keys, hp: dict, resume: bool, progr
         carry = mngr.restore(start, args=ocp.args.StandardRestore(carry))
     metrics = _read_metrics(run_dir, start)
     elapsed0 = metrics[-1].get("wall_s", 0.0) if metrics else 0.0
+    dropped: dict[int, int] = {}  # row -> the chunk it was dropped at, read back on resume
+    for r in metrics:
+        for i in r.get("dropped", []):
+            dropped.setdefault(i, r["chunk"])
 
     if trainer.shared is not None:  # one dataset for every row (zsbfm.data.sources)
         dataset = jax.tree_util.tree_map(
@@ -351,37 +392,59 @@ def run_loop(trainer: Trainer, run_dir: str, keys, hp: dict, resume: bool, progr
     flops = update_flops(trainer, carry, dataset, hp) if cfg.eval_every else None
     bar = _progress(cfg, start, progress and primary, label)
     t_loop = time.time()
-    with open(os.path.join(run_dir, "metrics.jsonl") if primary else os.devnull, "w") as f:
+    with contextlib.ExitStack() as cleanup:
+        stop = stop or cleanup.enter_context(StopSignals())
+        cleanup.callback(bar.close)
+        if mngr is not None:  # also on the way out of an error: the last save completes
+            cleanup.callback(mngr.wait_until_finished)
+        f = cleanup.enter_context(open(os.path.join(run_dir, "metrics.jsonl") if primary else os.devnull, "w"))
         for row in metrics:
-            f.write(json.dumps(row) + "\n")
+            f.write(json.dumps(jsonable(row), allow_nan=False) + "\n")
         for chunk in range(start, cfg.num_chunks):
+            stop.check(chunk, cfg.num_chunks)
             t_chunk = time.time()
             carry, m = chunk_fn(carry, dataset, np.int32(chunk), hp)
             m = jax.device_get(m)  # the one host transfer per chunk
+            finite = np.asarray(m.pop("finite"), bool).reshape(rows)
+            names = chunk_metrics(trainer.agent, chunk * cfg.chunk_steps, m)
             step = (chunk + 1) * cfg.chunk_steps
             row = {"chunk": chunk + 1, "step": step, "seconds": round(time.time() - t_chunk, 3),
-                   **{k: np.asarray(v).tolist() for k, v in m.items()}}
+                   **{k: np.asarray(m[k]).reshape(rows).tolist() for k in names}}
+            bad = [i for i in np.flatnonzero(~finite).tolist() if i not in dropped]
+            if bad:
+                where = f"chunk {chunk + 1}/{cfg.num_chunks} (updates {chunk * cfg.chunk_steps + 1}-{step})"
+                what = describe(row, names, bad, metrics, row_name)
+                if cfg.on_nonfinite == "stop" or len(dropped) + len(bad) == rows:
+                    last = mngr.latest_step() if mngr is not None else None
+                    kept = f"the checkpoint of chunk {last} is kept" if last else "no checkpoint was written"
+                    hint = ("; to finish the other seeds, run again with --set on_nonfinite=drop"
+                            if cfg.on_nonfinite == "stop" and len(dropped) + len(bad) < rows else "")
+                    raise NonFiniteError(f"non-finite training in {where}: {what}; {kept}{hint}", bad, chunk + 1)
+                print(f"warning: dropped in {where}: {what}", file=sys.stderr)
+                dropped.update({i: chunk + 1 for i in bad})
             if cfg.eval_every and ((chunk + 1) % cfg.eval_every == 0 or chunk + 1 == cfg.num_chunks):
                 scores = jax.device_get(eval_fn(carry, dataset, ekeys, hp))
                 row.update({f"eval/{k}": np.round(np.asarray(v), 4).tolist() for k, v in scores.items()})
                 row["flops"] = flops(step)
             row["wall_s"] = round(elapsed0 + time.time() - t_loop, 2)
+            if dropped:
+                row = dict(_blank_rows(row, rows, dropped), dropped=sorted(dropped))
+            row = jsonable(row)
             metrics.append(row)
-            f.write(json.dumps(row) + "\n")
+            f.write(json.dumps(row, allow_nan=False) + "\n")
             f.flush()
             if mngr is not None:
                 mngr.save(chunk + 1, args=ocp.args.StandardSave(carry))
             bar.update(1)
-            shown = {k: f"{np.mean(row[k]):.3g}" for k in ("fb_loss", "sf_loss", "enc_mse")
-                     if k in row and np.isfinite(np.mean(row[k]))}  # the phase's own loss
-            shown.update({k[5:]: f"{np.mean(row[k]):.2f}" for k in row if k.startswith("eval/") and k.endswith("/dense")})
+            shown = {k: f"{np.mean([x for x in row[k] if x is not None]):.3g}"
+                     for k in ("fb_loss", "sf_loss", "enc_mse") if k in row and len(dropped) < rows}
+            shown.update({k[5:]: f"{np.mean([x for x in row[k] if x is not None]):.2f}"
+                          for k in row if k.startswith("eval/") and k.endswith("/dense")})
             bar.set_postfix(shown)
             if callback is not None:
                 callback(chunk + 1, row)
-    bar.close()
-    if mngr is not None:
-        mngr.wait_until_finished()
-    return LoopResult(carry, dataset, metrics, start, time.time() - t0, shard, eval_fn, ekeys, hp)
+        stop.check(cfg.num_chunks, cfg.num_chunks)
+    return LoopResult(carry, dataset, metrics, start, time.time() - t0, shard, eval_fn, ekeys, hp, dropped)
 
 
 def train(cfg: Config, resume: bool = True, progress: bool = True,
@@ -390,39 +453,49 @@ def train(cfg: Config, resume: bool = True, progress: bool = True,
 
     resume:   continue from the newest checkpoint in runs/<name>/ if it was written by
               the same config (a different config there is an error, not an overwrite;
-              data_parallel may differ: it is placement), on any number of devices;
+              data_parallel and on_nonfinite may differ), on any number of devices;
               resume=False deletes runs/<name>/ and starts over.
-    callback: called on the host after each chunk as callback(chunk, metrics_row).
+    callback: called on the host after each chunk as callback(chunk, row), with the row
+              metrics.jsonl gets: {"chunk", "step", "seconds", "wall_s", each loss of the
+              chunk's phase: [per seed]} and, when the chunk was evaluated (eval_every),
+              "eval/<split>/<protocol>": [per seed] and "flops" (cumulative, per seed);
+              "dropped": [seeds] once a seed was dropped (zsbfm.loggers builds on it).
+
+    The run holds its directory (zsbfm.lock: a second writer gets RunLocked); SIGINT and
+    SIGTERM stop it at the next chunk boundary with `Interrupted` (zsbfm.interrupt); a
+    seed that goes non-finite raises NonFiniteError or is dropped (Config.on_nonfinite).
 
     Multi-process (after jax.distributed.initialize; zsbfm.cli does it): every process
     calls this with the same cfg; runs_dir must be on a filesystem all processes share.
     Each process collects and trains its own devices' seeds; orbax writes the checkpoints
-    together; process 0 alone writes config.json, metrics.jsonl, results.json and plots;
-    the returned Run's params are replicated on every process.
+    together; process 0 alone holds the lock and writes config.json, metrics.jsonl,
+    results.json and plots; the returned Run's params are replicated on every process.
     """
-    run_dir = prepare_run_dir(cfg, resume)
     primary = jax.process_index() == 0
-    trainer = make_train(cfg, progress and primary)
-    loop = run_loop(trainer, run_dir, seed_keys(cfg), {}, resume, progress, callback)
-    old = _read_results(run_dir) if loop.start == cfg.num_chunks else None
-    results = final_results(trainer, loop)
-    results["wall_time_s"]["train"] = round(loop.train_seconds, 2)
-    if old is not None:  # a finished run evaluated again: its training time is the original's
-        results["wall_time_s"]["train"] = old.get("wall_time_s", {}).get("train", results["wall_time_s"]["train"])
-    results["resumed_from_chunk"] = loop.start
-    params = trainer.agent.eval_params(loop.carry.agent_state)
-    if jax.process_count() > 1:  # each process holds only its seeds: gather them everywhere
-        params = jax.jit(lambda p: p, out_shardings=replicated(loop.shard))(params)
-    run = Run(cfg=cfg, params=params, results=results, metrics=loop.metrics)
-    run.save(run_dir)
-    if not primary:
-        return run
-    try:
-        from zsbfm.plots import plot_run
+    run_dir = os.path.abspath(os.path.join(cfg.runs_dir, cfg.run_name))
+    with RunDirLock(run_dir) if primary else contextlib.nullcontext():
+        run_dir = prepare_run_dir(cfg, resume)
+        trainer = make_train(cfg, progress and primary)
+        with StopSignals() as stop:  # from here to the saved run, a signal waits for a chunk boundary
+            loop = run_loop(trainer, run_dir, seed_keys(cfg), {}, resume, progress, callback, stop=stop)
+            old = _read_results(run_dir) if loop.start == cfg.num_chunks else None
+            results = final_results(trainer, loop)
+            results["wall_time_s"]["train"] = round(loop.train_seconds, 2)
+            if old is not None:  # a finished run evaluated again: its training time is the original's
+                results["wall_time_s"]["train"] = old.get("wall_time_s", {}).get("train", results["wall_time_s"]["train"])
+            results["resumed_from_chunk"] = loop.start
+            params = trainer.agent.eval_params(loop.carry.agent_state)
+            if jax.process_count() > 1:  # each process holds only its seeds: gather them everywhere
+                params = jax.jit(lambda p: p, out_shardings=replicated(loop.shard))(params)
+            run = Run(cfg=cfg, params=params, results=results, metrics=loop.metrics)
+            run.save(run_dir)
+            if primary:
+                try:
+                    from zsbfm.plots import plot_run
 
-        plot_run(run, run_dir)
-    except Exception as e:  # plots must never lose a finished run
-        print(f"warning: plotting failed: {e!r}")
+                    plot_run(run, run_dir)
+                except Exception as e:  # plots must never lose a finished run
+                    print(f"warning: plotting failed: {e!r}")
     return run
 
 
@@ -463,9 +536,15 @@ def final_results(trainer: Trainer, loop: LoopResult) -> dict:
         split, protocol = k.split("/")
         protocols.setdefault(protocol, {})[split] = v
     results["protocols"] = protocols
+    if loop.dropped:  # a dropped row's scores are those of its last finite state: not a result
+        n, blank = len(results["train"]), loop.dropped
+        results.update(_blank_rows({s: results[s] for s in ("train", "test")}, n, blank))
+        results["detail"] = {s: _blank_rows(d, n, blank) for s, d in results["detail"].items()}
+        results["protocols"] = {p: _blank_rows(d, n, blank) for p, d in protocols.items()}
+        results["dropped"] = [{"seed": i, "chunk": c} for i, c in sorted(blank.items())]
     results["wall_time_s"] = {"train": round(loop.train_seconds, 2), "eval": round(time.time() - t_eval, 2)}
     results["metric"] = metric_of(trainer.env)
-    return results
+    return jsonable(results)
 
 
 def _progress(cfg: Config, start: int, enabled: bool, label: str = ""):

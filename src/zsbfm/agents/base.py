@@ -14,6 +14,10 @@ seeds and checkpoint it without knowing the algorithm:
 behaviour policy in the layout the task lives in; `step` is the global update index,
 the same for every seed (unbatched under vmap), for agents with training phases; context-free agents ignore it, belief
 agents infer h from it. `params = agent.eval_params(state)` is what acting needs.
+
+An agent with training phases (agents/belief.py) returns every phase's metrics from each
+chunk, with placeholders for the phases not running, and names the real ones with
+`phase_metrics(first_step, names)`; `chunk_metrics` asks it (or keeps every name).
 """
 
 from __future__ import annotations
@@ -54,3 +58,10 @@ class Agent(Protocol):
     def goal_task(self, params: Any, goal_obs: jax.Array, context: Context) -> Task: ...
     def reward_task(self, params: Any, obs: jax.Array, reward: jax.Array, context: Context) -> Task: ...
     def act(self, params: Any, obs: jax.Array, task: Task, key: jax.Array) -> jax.Array: ...
+
+
+def chunk_metrics(agent, first_step: int, names) -> tuple[str, ...]:
+    """The metrics of `names` that a chunk of `agent` starting at update `first_step`
+    computed: the agent's `phase_metrics` when it has training phases, else all of them."""
+    phase_metrics = getattr(agent, "phase_metrics", None)
+    return tuple(names) if phase_metrics is None else phase_metrics(first_step, names)

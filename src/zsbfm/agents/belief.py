@@ -258,10 +258,25 @@ class BeliefFBAgent(FBAgent):
         return h
 
     # -- the update ----------------------------------------------------------------------------
+    # what encoder_loss reports (enc_nce only with enc_contrast > 0): the encoder phase's metrics
+    ENCODER_METRICS = ("enc_mse", "enc_kl", "h_norm", "enc_nce")
+
     @staticmethod
     def _pad(metrics: dict, other_shapes: dict) -> dict:
-        """Each phase reports its own metrics; the other phase's read NaN ("not in this phase")."""
-        return {**{k: jnp.full(v.shape, jnp.nan, v.dtype) for k, v in other_shapes.items()}, **metrics}
+        """Each phase reports its own metrics; the other phase's entries are zero placeholders
+        (both branches of the phase's lax.cond return one structure). Zeros, not NaN, so the
+        chunk's finiteness check (zsbfm.nonfinite) reads only real numbers; the host keeps
+        the phase's own metrics (`phase_metrics`)."""
+        return {**{k: jnp.zeros(v.shape, v.dtype) for k, v in other_shapes.items()}, **metrics}
+
+    def phase_metrics(self, first_step: int, names) -> tuple[str, ...]:
+        """The metrics of `names` that a chunk starting at update `first_step` computes: an
+        encoder chunk (staged mode, first_step < enc_steps) the encoder's, an FB chunk the
+        others; the rest are `_pad`'s placeholders. Joint mode computes them all."""
+        if self.cfg.encoder_mode == "joint":
+            return tuple(names)
+        encoder = first_step < self.cfg.enc_steps
+        return tuple(k for k in names if (k in self.ENCODER_METRICS) == encoder)
 
     def update(self, state: BeliefState, dataset, key: Array, step: Array) -> tuple[BeliefState, dict]:
         """One step: an encoder step while step < enc_steps, else an FB step (the h table is
