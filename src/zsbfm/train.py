@@ -418,7 +418,8 @@ def run_loop(trainer: Trainer, run_dir: str, keys, hp: dict, resume: bool, progr
                     last = mngr.latest_step() if mngr is not None else None
                     kept = f"the checkpoint of chunk {last} is kept" if last else "no checkpoint was written"
                     hint = ("; to finish the other seeds, run again with --set on_nonfinite=drop"
-                            if cfg.on_nonfinite == "stop" and len(dropped) + len(bad) < rows else "")
+                            if cfg.on_nonfinite == "stop" and len(dropped) + len(bad) < rows
+                            else "; no seed is left to train" if cfg.on_nonfinite == "drop" else "")
                     raise NonFiniteError(f"non-finite training in {where}: {what}; {kept}{hint}", bad, chunk + 1)
                 print(f"warning: dropped in {where}: {what}", file=sys.stderr)
                 dropped.update({i: chunk + 1 for i in bad})
