@@ -24,6 +24,9 @@ class Interrupted(KeyboardInterrupt):
         self.signum, self.chunk = signum, chunk
         self.exit_code = 128 + signum
         name = signal.Signals(signum).name
+        if chunk == 0:
+            super().__init__(f"{name}: stopped before the first chunk ended; nothing was trained")
+            return
         done = (f"training done ({chunk}/{num_chunks} chunks), not yet evaluated" if chunk == num_chunks
                 else f"after chunk {chunk}/{num_chunks}")
         super().__init__(f"{name}: stopped {done}; its checkpoint is written: run the same "

@@ -37,6 +37,7 @@ import orbax.checkpoint as ocp
 from flax import struct
 
 from zsbfm.agents import make_agent
+from zsbfm.agents.base import chunk_metrics
 from zsbfm.config import Config
 from zsbfm.cpu_tuning import compiler_options
 from zsbfm.data.collect import collect
@@ -45,7 +46,6 @@ from zsbfm.data.sources import shared_dataset
 from zsbfm.data.sources import make_env_for
 from zsbfm.evaluate import (default_goals, evaluate_params, evaluate_protocol, metric_of, protocol_score,
                             protocols_of, reward_states, split_results)
-from zsbfm.agents.base import chunk_metrics
 from zsbfm.interrupt import StopSignals
 from zsbfm.keys import eval_key, seed_keys  # noqa: F401  (zsbfm.train.seed_keys: the seeds' keys)
 from zsbfm.lock import LOCK_NAME, RunDirLock
