@@ -12,7 +12,7 @@ STAMP  := $(VENV)/.installed
 .PHONY: train test test-all bench data table clean help
 
 help:
-	@echo "make train [ENV=fourrooms|doors|pointmass|antwind] [ALGO=fb] [SEEDS=3] [SIZE=cpu|paper] [ARGS='--set steps=2000']"
+	@echo "make train [ENV=fourrooms|doors|pointmass|antwind] [ALGO=fb] [SEEDS=3] [SIZE=cpu|long|paper (zsbfm.names.SIZES)] [ARGS='--set steps=2000']"
 	@echo "make test        fast test suite (CPU, minutes)"
 	@echo "make test-all    including slow tests"
 	@echo "make bench       throughput benchmarks"
