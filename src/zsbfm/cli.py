@@ -24,7 +24,7 @@ ALGO_NOTES = {"fb": "Forward-Backward", "bfb": "Belief-FB", "rfb": "Rotation-FB"
               "oracle": "FB told the true context, a diagnostic", "hilp": "HILP", "lap": "Laplacian",
               "random": "uniform actions"}
 SIZE_NOTES = {"cpu": "the default, minutes per seed on a 2-core CPU", "long": "cpu with more updates",
-              "paper": "the paper's Table 4 sizes, for a GPU"}
+              "paper": "the paper's Table 4 sizes, for a GPU", "authors": "the authors' public code's settings"}
 
 
 def _choices(names, notes: dict) -> str:
@@ -36,9 +36,9 @@ def _sizes_help() -> str:
     parts = []
     for size in SIZES:
         envs = [e for e in env_names() if size in env_spec(e).presets]
-        where = "" if len(envs) == len(env_names()) else f"; {', '.join(envs)} only"
-        note = SIZE_NOTES.get(size, "")
-        parts.append(f"{size} ({note}{where})" if note or where else size)
+        notes = [SIZE_NOTES.get(size, ""), "" if len(envs) == len(env_names()) else f"{', '.join(envs)} only"]
+        notes = "; ".join(n for n in notes if n)
+        parts.append(f"{size} ({notes})" if notes else size)
     return " | ".join(parts)
 
 
