@@ -42,7 +42,8 @@ def test_learned_measure_matches_closed_form():
     ds = collect(env, jax.random.PRNGKey(0), ctxs, 400)
     cfg = zsbfm.Config.preset("fourrooms", "fb", d=16, f_pre_hidden=(64,), f_pre_out=64,
                               f_hidden=(128,), b_hidden=(64,), batch_size=256, gamma=GAMMA,
-                              lr=1e-3, target_policy="uniform", splus="batch", q_loss_coef=0.0)
+                              lr=1e-3, target_policy="uniform", splus="batch", q_loss_coef=0.0,
+                              clip_norm=0.0, tau=0.05, f_heads=1)  # settings pinned: the maths, not the preset
     agent = FBAgent(cfg, env)  # the paper's FB loss: s+ from the batch, no Q-loss
     state = jax.jit(agent.init)(jax.random.PRNGKey(1))
     train = jit_optimised(lambda s, k: jax.lax.scan(lambda s, k: agent.update(s, ds, k), s,
