@@ -2,6 +2,7 @@
 sampled h, against hand-written maths."""
 
 import dataclasses
+import re
 
 import flax.linen as nn
 import jax
@@ -121,3 +122,14 @@ def test_authors_preset_holds_their_settings():
     assert (r.context_dim, r.temperature, r.kappa) == (150, 300.0, 50.0)
     with pytest.raises(ValueError, match="size='authors' is invalid for env 'antwind'"):
         zsbfm.Config.preset("antwind", "fb", "authors")
+
+
+@pytest.mark.parametrize("shape", [(7, 5), (5, 7), (2, 3, 6), (64, 64)])
+def test_orthogonal_init_is_flax_orthogonal_without_lapack(shape):
+    from zsbfm.ops.orthogonal import orthogonal
+
+    key = jax.random.PRNGKey(3)
+    ours = orthogonal()(key, shape)
+    np.testing.assert_allclose(ours, nn.initializers.orthogonal()(key, shape), atol=2e-5)
+    jaxpr = str(jax.make_jaxpr(lambda k: jax.vmap(lambda kk: orthogonal()(kk, shape))(k))(jax.random.split(key, 2)))
+    assert not re.search(r"\bqr\b|householder|geqrf|orgqr", jaxpr)  # nothing the batched LAPACK kernels run

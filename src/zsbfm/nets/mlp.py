@@ -9,6 +9,7 @@ import flax.linen as nn
 import jax.numpy as jnp
 
 from zsbfm.ops.matmul import matmul
+from zsbfm.ops.orthogonal import orthogonal
 
 
 def _dense_dot_general(lhs, rhs, dimension_numbers, precision=None, preferred_element_type=None):
@@ -56,7 +57,8 @@ class MLP(nn.Module):
 class NormedMLP(nn.Module):
     """The MLP of the authors' code (F and B of BeliefConditionedFB, `utils/networks.py`):
     the first hidden layer Dense -> tanh -> LayerNorm, every later hidden layer
-    Dense -> GELU -> LayerNorm, a linear output; orthogonal initialisation throughout.
+    Dense -> GELU -> LayerNorm, a linear output; orthogonal initialisation throughout
+    (ops.orthogonal: flax's initialiser without its LAPACK call).
 
     x: [..., in] -> [..., out].
     """
@@ -66,7 +68,7 @@ class NormedMLP(nn.Module):
 
     @nn.compact
     def __call__(self, x):
-        init = nn.initializers.orthogonal()
+        init = orthogonal()
         for i, h in enumerate(self.hidden):
             x = Dense(h, kernel_init=init)(x)
             x = nn.LayerNorm()(jnp.tanh(x) if i == 0 else nn.gelu(x))
