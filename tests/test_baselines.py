@@ -56,6 +56,7 @@ def small_cfg(algo, **kw):
     return zsbfm.Config.preset("fourrooms", algo, **base)
 
 
+@pytest.mark.slow  # a learning-quality check (~20-40 s): make test-all
 def test_hilp_value_orders_states_by_bfs_distance():
     env, ctxs, cells, walls = corridor_room()
     ds = collect(env, jax.random.PRNGKey(0), ctxs, 200)
@@ -75,6 +76,7 @@ def test_hilp_value_orders_states_by_bfs_distance():
     assert agree / total > 0.85, f"value ordering agrees with BFS on {agree / total:.2f} of pairs"
 
 
+@pytest.mark.slow  # a learning-quality check (~20-40 s): make test-all
 def test_laplacian_features_become_orthonormal():
     """With phi = sqrt(c) f for an orthonormal f of Dirichlet energy lam, the loss
     c lam + coef (c^2 - 2c) is minimal at c = 1 - lam / (2 coef): the smoothness term

@@ -134,7 +134,7 @@ def test_rfb_requires_h_dim_equal_d():
 
 
 @pytest.mark.parametrize("contrast, enc_steps, episodes", [
-    (1.0, 600, 50),                                             # + the same-layout InfoNCE term
+    pytest.param(1.0, 600, 50, marks=pytest.mark.slow),         # + the same-layout InfoNCE term: ~40 s
     pytest.param(0.0, 5000, 200, marks=pytest.mark.slow),       # the paper's loss alone: ~3 min
 ])
 def test_short_encoder_pretraining_separates_fourrooms_layouts(contrast, enc_steps, episodes):

@@ -107,6 +107,7 @@ def test_goal_reward_within_radius(tmp_path):
     assert path.stat().st_size > 0
 
 
+@pytest.mark.slow  # a learning-quality check (~20-40 s): make test-all
 def test_actor_ascends_q_on_held_out_states():
     """After a short FB training, the actor's action beats random actions in Q on states
     of held-out mazes, for a fixed z (the actor is trained only through -Q)."""
@@ -154,6 +155,7 @@ def test_continuous_rotation_fb_trains_end_to_end(tmp_path):
         assert np.isfinite(run.metrics[-1]["fb_loss"]).all()
 
 
+@pytest.mark.slow  # a learning-quality check (~20-40 s): make test-all
 def test_actor_bc_pulls_the_policy_to_the_data_actions():
     """TD3+BC (Config.actor_bc > 0): descending the actor loss alone (F frozen at init)
     fits the dataset's actions; the pure -Q actor (actor_bc = 0) does not."""
