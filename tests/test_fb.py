@@ -202,3 +202,33 @@ def test_import_unrolls_threefry_and_keeps_every_random_bit():
     jax_own, ours = run("jax"), run("zsbfm")
     assert jax_own[0] == "True" and ours[0] == "False"  # the loop is there without zsbfm, gone with it
     assert ours[1:] == jax_own[1:]
+
+
+def test_project_to_sphere_has_a_finite_gradient_at_zero():
+    """d|x|/dx = x / |x| is 0/0 at x = 0; the projection's gradient there must be finite
+    (and equal the plain norm's away from 0)."""
+    from zsbfm.ops.sphere import project_to_sphere
+
+    g0 = jax.grad(lambda x: project_to_sphere(x).sum())(jnp.zeros(4))
+    assert np.all(np.isfinite(np.asarray(g0)))
+    x = jnp.array([0.3, -1.2, 0.5, 2.0])
+    plain = lambda x: (2.0 * x / (jnp.linalg.norm(x) + 1e-8)).sum()
+    np.testing.assert_allclose(np.asarray(jax.grad(lambda x: project_to_sphere(x).sum())(x)),
+                               np.asarray(jax.grad(plain)(x)), rtol=1e-6)
+
+
+def test_coordinate_inputs_with_the_exact_splus_give_finite_updates():
+    """Under raw and unscaled (x, y) the corner cell (0, 0), a wall that the exact s+
+    expectation still evaluates at weight 0, is the zero input: B there is 0 at
+    initialisation, and the sphere projection's gradient must not turn that into NaN."""
+    env = zsbfm.make_env("fourrooms", n_train=2)
+    ds = collect(env, jax.random.PRNGKey(0), env.contexts("train"), 4)
+    for enc in ("raw", "unscaled"):
+        cfg = zsbfm.Config.preset("fourrooms", "fb", d=8, f_pre_hidden=(8,), f_pre_out=8,
+                                  f_hidden=(8,), b_hidden=(8,), batch_size=16, obs_encoding=enc)
+        assert cfg.splus == "exact"
+        agent = FBAgent(cfg, env)
+        state, metrics = agent.update(agent.init(jax.random.PRNGKey(1)), ds, jax.random.PRNGKey(2))
+        leaves = jax.tree_util.tree_leaves(state.params)
+        assert all(np.all(np.isfinite(np.asarray(p))) for p in leaves), enc
+        assert np.isfinite(float(metrics["fb_loss"])), enc
