@@ -199,3 +199,35 @@ def test_staged_phases_touch_only_their_own_parameters():
                                                                            ds.obs[:, 1:])[0]))
     np.testing.assert_allclose(np.asarray(s2.h_table[:, 0]), np.asarray(standardized(s2.params.enc)),
                                rtol=1e-4, atol=1e-4)
+
+
+@pytest.mark.parametrize("source", ["episode", "dataset"])
+def test_rfb_state_half_of_z_comes_from_the_configured_states(source):
+    """With z_mix = 1 every training z is B(s): with rfb_z_states="episode" s is a state of
+    the row's own episode; with "dataset" s is any stored state, so many rows get B of a cell
+    their episode never visited (a 100-step random walk covers part of the four rooms)."""
+    from zsbfm.data import collect, sample_transitions
+
+    env = zsbfm.make_env("fourrooms", n_train=2)
+    ds = collect(env, jax.random.PRNGKey(0), env.contexts("train"), 20)
+    cfg = zsbfm.Config.preset("fourrooms", "rfb", d=8, f_pre_hidden=(8,), f_pre_out=8, f_hidden=(8,),
+                              b_hidden=(8,), z_mix=1.0, rfb_z_states=source, n_train_layouts=2,
+                              episodes_per_layout=20)
+    agent = make_agent(cfg, env)
+    state = agent.init(jax.random.PRNGKey(1))
+    n = 1000
+    batch = sample_transitions(jax.random.PRNGKey(2), ds, n)
+    h = jax.random.normal(jax.random.PRNGKey(3), (n, 8))
+    z = np.asarray(agent.train_z(state, ds, batch, h, jax.random.PRNGKey(4)))
+    cells = jnp.stack(jnp.meshgrid(jnp.arange(11.0), jnp.arange(11.0)), -1).reshape(-1, 2)
+    Bset = np.asarray(agent.backward(state.params.B, cells))
+    nearest = np.argmin(np.linalg.norm(z[:, None] - Bset[None], axis=-1), axis=1)
+    assert np.min(np.linalg.norm(z - Bset[nearest], axis=-1)) < 1e-4  # every z is B of a cell
+    obs = np.asarray(ds.obs)
+    episode = np.asarray(batch.episode)
+    visited = [{tuple(c) for c in obs[e, 1:]} for e in episode]
+    in_episode = np.mean([tuple(np.asarray(cells[k])) in v for k, v in zip(nearest, visited)])
+    if source == "episode":
+        assert in_episode == 1.0
+    else:
+        assert in_episode < 0.6, in_episode  # measured 0.34

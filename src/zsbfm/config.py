@@ -18,8 +18,8 @@ import zsbfm.envs  # noqa: F401  (registers the built-in environments)
 from zsbfm.envs.registry import env_names, env_spec
 # the names of every choice live below config (zsbfm.names); re-exported here for callers
 from zsbfm.names import (ALGOS, BELIEF_ALGOS, DATA_POLICIES, ENCODER_MODES, EXPERT_SOURCES,  # noqa: F401
-                         F_ARCHS, OBS_ENCODINGS, ON_NONFINITE, SIZES, SPLUS, TARGET_POLICIES,
-                         TWIN_TARGETS, algo_names)
+                         F_ARCHS, OBS_ENCODINGS, ON_NONFINITE, RFB_Z_STATES, SIZES, SPLUS,
+                         TARGET_POLICIES, TWIN_TARGETS, algo_names)
 
 ENVS = env_names()                     # the environments registered at import (zsbfm.envs.registry)
 # Float settings a vmapped sweep can vary inside one compiled program (zsbfm.sweep): each is
@@ -117,6 +117,9 @@ class Config:
     encoder_mode: str = "staged"  # "staged": f_dyn first, then FB on stop_grad(h); "joint"
     windows_per_episode: int = 4  # h-table windows per episode when context_len < episode_len
     kappa: float = 50.0          # vMF concentration of Rotation-FB's training z
+    # Rotation-FB's B(s) half of the training z: s from h's own "episode" | any "dataset" state
+    # (the paper's and the authors'; on Four-Rooms the goal cells' z, far from the episode)
+    rfb_z_states: str = "episode"
     oracle_context: str = "id"   # what the oracle's F is told: "id" (one-hot train layout) | "walls" (agents/oracle.py)
 
     # --- successor-feature baselines: HILP, Laplacian (ignored by the FB family) ---------
@@ -225,6 +228,8 @@ class Config:
                 f"False for env={self.env!r} (it has no cell map of positions: EnvSpec.cell_map)")
         if not self.kappa > 0:
             bad("kappa", self.kappa, "kappa > 0")
+        if self.rfb_z_states not in RFB_Z_STATES:
+            bad("rfb_z_states", self.rfb_z_states, f"one of {RFB_Z_STATES}")
         if self.algo == "rfb" and self.h_dim not in (0, self.d):
             bad("h_dim", self.h_dim, f"0 or d={self.d} for rfb (z is drawn around h/|h| in R^d)")
         if not 0.0 < self.feat_tau <= 1.0:

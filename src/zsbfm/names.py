@@ -22,6 +22,9 @@ SPLUS = ("batch", "states", "exact")    # the s+ estimator of the FB loss (agent
 F_ARCHS = ("reference", "normed_trunk", "mlp")  # F's (and with "mlp" B's) layer layout (nets/fb.py)
 TWIN_TARGETS = ("mean", "min")           # how the twin heads' target measures combine (agents/fb.py)
 OBS_ENCODINGS = ("onehot", "raw", "unscaled")  # the networks' observation input (agents/fb.py obs_features)
+# where Rotation-FB's B(s) half of the training z comes from (agents/belief.py): a state of
+# h's own "episode" | any "dataset" state (the paper's "s ~ D", the authors' code, FB's)
+RFB_Z_STATES = ("episode", "dataset")
 DATA_POLICIES = ("expert", "random")
 EXPERT_SOURCES = ("shipped", "train")
 ON_NONFINITE = ("stop", "drop")         # what a run does when a seed's losses or parameters go non-finite (zsbfm.nonfinite)

@@ -9,8 +9,8 @@ sees h. At test time, h = mu of one reward-free episode in the target layout.
 
 Rotation-FB (section 3.3, Algorithm 2): as Belief-FB, but training z are drawn from
 vMF(h / |h|, kappa) scaled to radius sqrt(d) (so dim h = d), mixed with probability
-z_mix with B(s) of a state from the same episode as h: a z that is plausible for that
-context, where FB mixes in B of states from any layout.
+z_mix with B(s), s a state from the same episode as h (Config.rfb_z_states="episode")
+or any dataset state ("dataset": the paper's "s ~ D" and the authors' code, as FB).
 
 Schedules (Config.encoder_mode):
   "staged" (default, the paper's): steps [0, enc_steps) train f_dyn only; at step
@@ -38,7 +38,7 @@ from flax import struct
 
 from zsbfm.agents.base import Context, Task
 from zsbfm.agents.fb import FBAgent, FBParams, mix_z
-from zsbfm.data.samplers import Transitions, sample_windows
+from zsbfm.data.samplers import Transitions, sample_states, sample_windows
 from zsbfm.nets.encoder import ContextEncoder, Predictor
 from zsbfm.ops.sphere import project_to_sphere
 from zsbfm.ops.vmf import sample_vmf
@@ -350,12 +350,19 @@ class BeliefFBAgent(FBAgent):
 
 @dataclasses.dataclass(frozen=True)
 class RotationFBAgent(BeliefFBAgent):
-    """Rotation-FB: training z ~ vMF(h / |h|, kappa) * sqrt(d), mixed with B(s) of the same episode."""
+    """Rotation-FB: training z ~ vMF(h / |h|, kappa) * sqrt(d), mixed with B(s)."""
 
     def train_z(self, state, dataset, batch: Transitions, h: Array, key: Array) -> Array:
+        """z [n, d]: sqrt(d) vMF(h / |h|, kappa), or with prob z_mix B(s) with s a state of
+        each row's own episode (Config.rfb_z_states="episode") or any dataset state
+        ("dataset", as FB's z). Stop-gradient."""
         k_vmf, k_t, k_mix = jax.random.split(key, 3)
         n = batch.obs.shape[0]
         z_vmf = jnp.sqrt(self.cfg.d) * sample_vmf(k_vmf, h, self.cfg.kappa)
-        t = jax.random.randint(k_t, (n,), 1, dataset.episode_len + 1)
-        z_states = self.backward(state.params.B, dataset.obs[batch.episode, t])
+        if self.cfg.rfb_z_states == "dataset":
+            states = sample_states(k_t, dataset, n)
+        else:
+            t = jax.random.randint(k_t, (n,), 1, dataset.episode_len + 1)
+            states = dataset.obs[batch.episode, t]
+        z_states = self.backward(state.params.B, states)
         return jax.lax.stop_gradient(mix_z(k_mix, z_vmf, z_states, self.cfg.z_mix))
