@@ -9,10 +9,15 @@ A finished method (its results.json written by the same config) is read back, no
 retrained; an unfinished one resumes from its last checkpoint; so a killed sweep picks up
 where it stopped. A directory holding another config is moved aside, never deleted. Writes
 
-    results/<env>.json   per method: success per seed (train / test), wall times, run dir
+    results/<env>.json   per method: success per seed (train / test), wall times, run dir,
+                         the date and commit it was measured at
     results/<env>.md     mean +- std over seeds beside the paper's values, wall time
     results/<env>.png    bar chart of train and test success (the paper's Figure 1)
     (another --size writes results/<env>_<size>.*)
+
+A table of some methods (--algos) merges into an existing results/<env>.json of the same
+env, size, seeds and overrides: the other methods' rows are kept as they were measured
+(each row says when), so a table can be filled one method at a time.
 """
 
 from __future__ import annotations
@@ -22,6 +27,7 @@ import dataclasses
 import hashlib
 import json
 import os
+import subprocess
 import time
 
 import numpy as np
@@ -104,6 +110,18 @@ def results_of(cfg: Config, label: str) -> dict:
     return res
 
 
+def commit_of() -> str:
+    """The short commit of the checkout (with "+" when it has uncommitted changes), or "?"."""
+    try:
+        head = subprocess.run(["git", "rev-parse", "--short", "HEAD"], capture_output=True, text=True,
+                              check=True).stdout.strip()
+        dirty = subprocess.run(["git", "status", "--porcelain", "--untracked-files=no"], capture_output=True,
+                               text=True, check=True).stdout.strip()
+        return head + ("+" if dirty else "")
+    except (OSError, subprocess.CalledProcessError):
+        return "?"
+
+
 def run_table(env: str, algos, seeds: int, runs_dir: str, overrides, size: str = "cpu") -> dict:
     rows = {}
     for i, algo in enumerate(algos):
@@ -113,8 +131,22 @@ def run_table(env: str, algos, seeds: int, runs_dir: str, overrides, size: str =
         rows[algo] = {"train": res["train"], "test": res["test"], "protocols": res.get("protocols", {}),
                       "wall_time_s": wt["train"] + wt["eval"],
                       "resumed_from_chunk": res.get("resumed_from_chunk", 0),
-                      "run": os.path.join(runs_dir, cfg.run_name), "steps": cfg.steps}
+                      "run": os.path.join(runs_dir, cfg.run_name), "steps": cfg.steps,
+                      "measured": f"{time.strftime('%Y-%m-%d')} {commit_of()}"}
     return rows
+
+
+def merge_rows(path: str, header: dict, rows: dict) -> dict:
+    """rows over the rows already in `path` when it holds a table of the same header (env,
+    size, seeds, overrides); every method in ORDER. Another header: rows alone."""
+    old = {}
+    if os.path.exists(path):
+        with open(path) as f:
+            prev = json.load(f)
+        if all(prev.get(k) == v for k, v in header.items()):
+            old = prev.get("methods", {})
+    merged = {**old, **rows}
+    return {a: merged[a] for a in ORDER if a in merged}
 
 
 def markdown(env: str, rows: dict, seeds: int, size: str, metric: str) -> str:
@@ -125,8 +157,8 @@ def markdown(env: str, rows: dict, seeds: int, size: str, metric: str) -> str:
     fmt = ".0f" if metric == "return" else ".2f"
     extra = [p for p in ("dense", "random_start") if any(p in r.get("protocols", {}) for r in rows.values())]
     head = f"| {env} ({seeds} seeds, {size} preset) | train {metric} | test {metric} | paper train / test "
-    head += "".join(f"| {p} train / test " for p in extra) + "| wall time (train + eval) |"
-    lines = [head, "|---" * (5 + len(extra)) + "|"]
+    head += "".join(f"| {p} train / test " for p in extra) + "| wall time (train + eval) | measured |"
+    lines = [head, "|---" * (6 + len(extra)) + "|"]
     for algo, row in rows.items():
         tr, te = np.asarray(row["train"]), np.asarray(row["test"])
         pp = paper.get(algo)
@@ -138,7 +170,7 @@ def markdown(env: str, rows: dict, seeds: int, size: str, metric: str) -> str:
             d = row.get("protocols", {}).get(p, {})
             cells += f"| {np.mean(d['train']):.2f} / {np.mean(d['test']):.2f} " if d else "| - "
         lines.append(f"| {NAMES[algo]} | {tr.mean():{fmt}} +- {tr.std():{fmt}} | {test} | "
-                     f"{f'{pp[0]:{fmt}} / {pp[1]:{fmt}}' if pp else 'n/a'} {cells}| {row['wall_time_s']:.0f} s{note} |")
+                     f"{f'{pp[0]:{fmt}} / {pp[1]:{fmt}}' if pp else 'n/a'} {cells}| {row['wall_time_s']:.0f} s{note} | {row.get('measured', '?')} |")
     if extra:
         lines.append("\nProtocols: train / test success = the paper's (start (1, 1), one goal in each other room); "
                      "dense = every free cell a goal from the start; random_start = the authors' earlier variant "
@@ -200,9 +232,10 @@ def main():
     os.makedirs(a.out, exist_ok=True)
     # results/<env>.* is the CPU preset's table; other sizes get results/<env>_<size>.*
     stem = os.path.join(a.out, a.env if a.size == "cpu" else f"{a.env}_{a.size}")
+    header = {"env": a.env, "seeds": a.seeds, "size": a.size, "overrides": a.set}
+    rows = merge_rows(stem + ".json", header, rows)
     with open(stem + ".json", "w") as f:
-        json.dump({"env": a.env, "seeds": a.seeds, "size": a.size, "overrides": a.set, "methods": rows,
-                   "paper": PAPER.get(a.env, {})}, f, indent=2)
+        json.dump({**header, "methods": rows, "paper": PAPER.get(a.env, {})}, f, indent=2)
     metric = metric_of(zsbfm.make_env(a.env))
     table = markdown(a.env, rows, a.seeds, a.size, metric)
     with open(stem + ".md", "w") as f:

@@ -119,7 +119,7 @@ def test_authors_preset_holds_their_settings():
     assert (c.h_dim, c.h_noise, c.h_standardize, c.enc_layers, c.enc_embed, c.obs_encoding) == (32, True, False, 4, 96, "unscaled")
     assert c.fb_steps == 20_000
     r = zsbfm.Config.preset("fourrooms", "rfb", "authors")
-    assert (r.context_dim, r.temperature, r.kappa) == (150, 300.0, 50.0)
+    assert (r.context_dim, r.temperature, r.kappa, r.rfb_z_states) == (150, 300.0, 50.0, "dataset")
     with pytest.raises(ValueError, match="size='authors' is invalid for env 'antwind'"):
         zsbfm.Config.preset("antwind", "fb", "authors")
 

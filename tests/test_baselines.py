@@ -1,5 +1,6 @@
 """Baselines against exact quantities (BFS distances, orthonormality) and end to end."""
 
+import json
 from collections import deque
 
 import jax
@@ -182,3 +183,22 @@ def test_table_keeps_overridden_and_stale_runs_apart(tmp_path):
     (old_dir / "config.json").write_text(dataclasses.replace(plain, runs_dir="elsewhere").to_json())
     table.set_aside_stale(plain)  # the same run stored elsewhere: kept
     assert old_dir.exists()
+
+
+def test_table_merges_a_partial_table_into_the_same_header_only(tmp_path):
+    import sys
+
+    sys.path.insert(0, "experiments")
+    import table
+
+    path = str(tmp_path / "fourrooms.json")
+    header = {"env": "fourrooms", "seeds": 3, "size": "cpu", "overrides": []}
+    row = lambda v: {"train": [v], "test": [v], "measured": f"day {v}"}
+    with open(path, "w") as f:
+        json.dump({**header, "methods": {"fb": row(0.1), "bfb": row(0.2)}}, f)
+    merged = table.merge_rows(path, header, {"rfb": row(0.3), "bfb": row(0.4)})
+    # the rerun method replaces its row, the others stay as measured, in the table's order
+    assert list(merged) == ["fb", "bfb", "rfb"]
+    assert merged["fb"] == row(0.1) and merged["bfb"] == row(0.4)
+    other = dict(header, overrides=["batch_size=512"])  # another preset's table: not merged
+    assert list(table.merge_rows(path, other, {"rfb": row(0.3)})) == ["rfb"]

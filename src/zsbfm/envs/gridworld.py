@@ -354,6 +354,8 @@ for _family in FAMILIES.values():
         belief_presets={"cpu": dict(enc_contrast=1.0, steps=24_000, enc_steps=4_000),
                         "long": dict(enc_contrast=1.0, steps=44_000, enc_steps=4_000),  # 40k FB updates
                         "authors": AUTHORS_ENC},
-        # Rotation-FB in their code: h of dimension d (z is drawn around it), Boltzmann T = 300
-        algo_presets={"authors": {"rfb": dict(h_dim=0, temperature=300.0, kappa=50.0)}},
+        # Rotation-FB in their code: h of dimension d (z is drawn around it), Boltzmann T = 300,
+        # the B(s) half of z from any dataset state (their batch's "actor_goals": random states)
+        algo_presets={"authors": {"rfb": dict(h_dim=0, temperature=300.0, kappa=50.0,
+                                              rfb_z_states="dataset")}},
         description=f"{_family.size}x{_family.size} randomized gridworld"))
