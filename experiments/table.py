@@ -132,19 +132,35 @@ def run_table(env: str, algos, seeds: int, runs_dir: str, overrides, size: str =
                       "wall_time_s": wt["train"] + wt["eval"],
                       "resumed_from_chunk": res.get("resumed_from_chunk", 0),
                       "run": os.path.join(runs_dir, cfg.run_name), "steps": cfg.steps,
-                      "measured": f"{time.strftime('%Y-%m-%d')} {commit_of()}"}
+                      "measured": f"{time.strftime('%Y-%m-%d')} {commit_of()}", "config": comparable(cfg)}
     return rows
 
 
-def merge_rows(path: str, header: dict, rows: dict) -> dict:
+def comparable(cfg: Config) -> dict:
+    """cfg as a dict without where the run is stored (its name, runs_dir, checkpointing)."""
+    d = cfg.to_dict()
+    for k in ("name", "runs_dir", "checkpoint"):
+        d.pop(k)
+    return json.loads(json.dumps(d))  # tuples as lists, as read back from JSON
+
+
+def merge_rows(path: str, header: dict, rows: dict, current=None) -> dict:
     """rows over the rows already in `path` when it holds a table of the same header (env,
-    size, seeds, overrides); every method in ORDER. Another header: rows alone."""
+    size, seeds, overrides); every method in ORDER. Another header: rows alone.
+
+    current(algo) -> Config: today's config of a method; an old row that records another
+    config (the preset changed since it was measured) is dropped, with a line saying so."""
     old = {}
     if os.path.exists(path):
         with open(path) as f:
             prev = json.load(f)
         if all(prev.get(k) == v for k, v in header.items()):
             old = prev.get("methods", {})
+    for algo in [a for a in old if a not in rows and current is not None and "config" in old[a]]:
+        if old[algo]["config"] != comparable(current(algo)):
+            print(f"  {path}: dropped the {algo} row (measured {old[algo].get('measured', '?')} "
+                  "with another config than today's preset)", flush=True)
+            del old[algo]
     merged = {**old, **rows}
     return {a: merged[a] for a in ORDER if a in merged}
 
@@ -233,7 +249,8 @@ def main():
     # results/<env>.* is the CPU preset's table; other sizes get results/<env>_<size>.*
     stem = os.path.join(a.out, a.env if a.size == "cpu" else f"{a.env}_{a.size}")
     header = {"env": a.env, "seeds": a.seeds, "size": a.size, "overrides": a.set}
-    rows = merge_rows(stem + ".json", header, rows)
+    rows = merge_rows(stem + ".json", header, rows,
+                      lambda algo: sweep_config(a.env, algo, a.size, a.seeds, a.runs_dir, a.set))
     with open(stem + ".json", "w") as f:
         json.dump({**header, "methods": rows, "paper": PAPER.get(a.env, {})}, f, indent=2)
     metric = metric_of(zsbfm.make_env(a.env))

@@ -202,3 +202,9 @@ def test_table_merges_a_partial_table_into_the_same_header_only(tmp_path):
     assert merged["fb"] == row(0.1) and merged["bfb"] == row(0.4)
     other = dict(header, overrides=["batch_size=512"])  # another preset's table: not merged
     assert list(table.merge_rows(path, other, {"rfb": row(0.3)})) == ["rfb"]
+    # a row that records its config is kept only while it is today's config of its method
+    today = lambda algo: table.sweep_config("fourrooms", algo, "cpu", 3, "runs", [])
+    with open(path, "w") as f:
+        json.dump({**header, "methods": {"fb": {**row(0.1), "config": table.comparable(today("fb"))},
+                                         "bfb": {**row(0.2), "config": table.comparable(today("fb"))}}}, f)
+    assert list(table.merge_rows(path, header, {"rfb": row(0.3)}, today)) == ["fb", "rfb"]
