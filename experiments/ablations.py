@@ -4,8 +4,10 @@
     python experiments/ablations.py --which context   # context length 25/50/100 (Fig. 2 right)
     python experiments/ablations.py --which kappa     # Rotation-FB kappa 1/10/50/100/200
     python experiments/ablations.py --which kappa --set steps=6000   # shortened
-    python experiments/ablations.py --which layouts --points 10 40 160 --seeds 1 \
-        --algos bfb oracle --set oracle_context=walls --tag walls  # 1e6 transitions each
+    python experiments/ablations.py --which layouts --points 10 40 160 --seeds 1 --algos bfb \
+        --set eval_every=4 --tag recipe                                  # 1e6 transitions each
+    python experiments/ablations.py --which layouts --points 10 40 160 --seeds 1 --algos oracle \
+        --set oracle_context=walls eval_every=4 --tag walls
     python experiments/ablations.py --which h_dim --points 16 32 150 --algos bfb
     python experiments/ablations.py --which h_noise --algos bfb      # h = mu vs mu + sigma eps
 
@@ -15,7 +17,8 @@ are read back; a point equal to the preset is the preset's own run, shared with
 `make table`. --points replaces the swept values (for layouts: the number of train layouts,
 each with 1e6 / (layouts x episode length) episodes).
 Writes results/ablation_<which>_<env>[_<tag>].json and .png (success vs the swept value,
-train and test, mean +- std over seeds; the paper protocol, and the dense one dashed).
+train and test, mean +- std over seeds; the paper protocol, and the dense one dashed): give
+a --tag to keep the files of an earlier preset's sweep.
 
 Dataset sizes for the layout sweep follow the paper (1e6 transitions in all):
 (layouts, episodes per layout) = (10, 1000), (20, 500), (30, 250)*, (50, 150)*
