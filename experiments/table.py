@@ -126,14 +126,18 @@ def run_table(env: str, algos, seeds: int, runs_dir: str, overrides, size: str =
     rows = {}
     for i, algo in enumerate(algos):
         cfg = sweep_config(env, algo, size, seeds, runs_dir, overrides)
-        commit = commit_of()  # the code that trains it (a run may outlast later commits)
+        # the code that trains it (a run may outlast later commits); a finished run read
+        # back: the day its results were written, the commit unknown
+        done = os.path.join(runs_dir, cfg.run_name, "results.json")
+        measured = (f"{time.strftime('%Y-%m-%d', time.localtime(os.path.getmtime(done)))} (read back)"
+                    if finished_results(cfg) is not None else f"{time.strftime('%Y-%m-%d')} {commit_of()}")
         res = results_of(cfg, f"[{i + 1}/{len(algos)}] {NAMES[algo]}")
         wt = res["wall_time_s"]
         rows[algo] = {"train": res["train"], "test": res["test"], "protocols": res.get("protocols", {}),
                       "wall_time_s": wt["train"] + wt["eval"],
                       "resumed_from_chunk": res.get("resumed_from_chunk", 0),
                       "run": os.path.join(runs_dir, cfg.run_name), "steps": cfg.steps,
-                      "measured": f"{time.strftime('%Y-%m-%d')} {commit}", "config": comparable(cfg)}
+                      "measured": measured, "config": comparable(cfg)}
     return rows
 
 
