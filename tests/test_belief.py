@@ -8,6 +8,7 @@ from scipy.special import ive
 
 import zsbfm
 from zsbfm.agents import make_agent
+from zsbfm.agents.base import Context
 from zsbfm.nets.encoder import ContextEncoder
 from zsbfm.ops.vmf import householder_to, sample_vmf, sample_vmf_cosine
 from tests.conftest import jit_optimised
@@ -131,6 +132,51 @@ def test_enc_contrast_must_be_non_negative():
 def test_rfb_requires_h_dim_equal_d():
     with pytest.raises(ValueError, match="Config.h_dim=8"):
         zsbfm.Config.preset("fourrooms", "rfb", d=16, h_dim=8)
+
+
+@pytest.mark.parametrize("bad", [dict(algo="rfb"), dict(algo="bfb", encoder_mode="joint"),
+                                 dict(algo="bfb", h_noise=True)])
+def test_h_from_context_is_belief_fbs_staged_mean_only(bad):
+    algo = bad.pop("algo")
+    with pytest.raises(ValueError, match="Config.h_from='context'"):
+        zsbfm.Config.preset("fourrooms", algo, h_from="context", **bad)
+    with pytest.raises(ValueError, match="Config.h_from='walls'"):
+        zsbfm.Config.preset("fourrooms", "bfb", h_from="walls")
+
+
+def test_h_from_context_predicts_the_wall_map_and_is_what_f_reads():
+    """h_from="context": a short pre-training makes c(mu) of fresh episodes predict their
+    layout's wall map better than the best constant (the train layouts' mean map), and the h
+    table F reads holds c(mu) of every episode: 81 numbers, the walls oracle's h."""
+    from zsbfm.data import collect
+
+    n = 4
+    cfg = zsbfm.Config.preset("fourrooms", "bfb", n_train_layouts=n, episodes_per_layout=50, h_from="context",
+                              enc_steps=400, steps=1400, chunk_steps=100, enc_embed=32, enc_mlp=64,
+                              pred_hidden=(64, 64), d=16, f_pre_hidden=(8,), f_pre_out=8, f_hidden=(8,),
+                              b_hidden=(8,), batch_size=8)
+    env = zsbfm.make_env("fourrooms", n_train=n)
+    agent = make_agent(cfg, env)
+    assert (agent.h_dim, agent.mu_dim) == (81, 16)
+    ds = jax.jit(lambda k: collect(env, k, env.contexts("train"), 50))(jax.random.PRNGKey(0))
+    state = jax.jit(agent.init)(jax.random.PRNGKey(1))
+    pre = jit_optimised(lambda s, k: jax.lax.scan(lambda s, k: agent.pretrain_step(s, ds, k), s,
+                                                  jax.random.split(k, cfg.enc_steps)))
+    state, metrics = pre(state, jax.random.PRNGKey(2))
+    assert metrics["enc_ctx_mse"][-20:].mean() < 0.5 * metrics["enc_ctx_mse"][:20].mean()
+
+    held_out = jax.jit(lambda k: collect(env, k, env.contexts("train"), 10))(jax.random.PRNGKey(3))
+    h = jax.jit(jax.vmap(lambda o, a: agent.context_h(state.params, Context(obs=o, action=a))))(
+        held_out.obs, held_out.action)
+    walls = np.asarray(jax.vmap(env.context_features)(env.contexts("train")))[np.asarray(held_out.context_id)]
+    best_constant = np.asarray(agent.layout_features).mean(0)
+    assert np.mean((np.asarray(h) - walls) ** 2) < 0.6 * np.mean((best_constant - walls) ** 2)
+
+    state = jax.jit(agent.build_h_table)(state, ds, jax.random.PRNGKey(4))
+    mu = jax.jit(lambda enc: agent.encode(enc, ds.obs[:, :-1], ds.action, ds.obs[:, 1:])[0])(state.params.enc)
+    np.testing.assert_allclose(np.asarray(state.h_table[:, 0]),
+                               np.asarray(agent.context_head.apply(state.params.enc["context_head"], mu)),
+                               rtol=1e-4, atol=1e-4)
 
 
 @pytest.mark.parametrize("contrast, enc_steps, episodes", [

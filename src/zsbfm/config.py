@@ -18,7 +18,7 @@ import zsbfm.envs  # noqa: F401  (registers the built-in environments)
 from zsbfm.envs.registry import env_names, env_spec
 # the names of every choice live below config (zsbfm.names); re-exported here for callers
 from zsbfm.names import (ALGOS, BELIEF_ALGOS, DATA_POLICIES, ENCODER_MODES, EXPERT_SOURCES,  # noqa: F401
-                         F_ARCHS, OBS_ENCODINGS, ON_NONFINITE, RFB_Z_STATES, SIZES, SPLUS,
+                         F_ARCHS, H_FROM, OBS_ENCODINGS, ON_NONFINITE, RFB_Z_STATES, SIZES, SPLUS,
                          TARGET_POLICIES, TWIN_TARGETS, algo_names)
 
 ENVS = env_names()                     # the environments registered at import (zsbfm.envs.registry)
@@ -102,6 +102,11 @@ class Config:
     h_in_sa: bool = False        # h also enters F's (s, a) preprocessor (paper: only with z)
     h_noise: bool = False        # FB trains on h ~ q(h | episode) = mu + sigma eps, a fresh draw per update (the authors'); False: mu
     h_standardize: bool = True   # h standardised by the dataset statistics of mu (agents/belief.py); False: the encoder's own scale
+    # what F is given as h: "mu" (the paper's: the encoder's mean) | "context" (bfb: a linear
+    # head's prediction of the layout's context features from mu, trained on the train layouts;
+    # for gridworlds the wall map, the walls oracle's input inferred from one episode)
+    h_from: str = "mu"
+    enc_context_coef: float = 1.0  # weight of that head's regression loss (h_from="context")
     enc_embed: int = 32          # transformer width
     enc_heads: int = 4           # attention heads per block
     enc_layers: int = 2          # transformer blocks (0: a per-token MLP, mean-pooled)
@@ -230,6 +235,17 @@ class Config:
             bad("kappa", self.kappa, "kappa > 0")
         if self.rfb_z_states not in RFB_Z_STATES:
             bad("rfb_z_states", self.rfb_z_states, f"one of {RFB_Z_STATES}")
+        if self.h_from not in H_FROM:
+            bad("h_from", self.h_from, f"one of {H_FROM}")
+        if self.h_from == "context":
+            if self.algo != "bfb":
+                bad("h_from", self.h_from, f"'mu' for algo={self.algo!r} ('context' is Belief-FB's: "
+                    "rfb needs h in R^d)")
+            if self.encoder_mode != "staged" or self.h_noise:
+                bad("h_from", self.h_from, "'mu' with encoder_mode='joint' or h_noise=True "
+                    "('context' reads the frozen encoder's mean)")
+        if not self.enc_context_coef >= 0:
+            bad("enc_context_coef", self.enc_context_coef, "enc_context_coef >= 0")
         if self.algo == "rfb" and self.h_dim not in (0, self.d):
             bad("h_dim", self.h_dim, f"0 or d={self.d} for rfb (z is drawn around h/|h| in R^d)")
         if not 0.0 < self.feat_tau <= 1.0:

@@ -12,6 +12,14 @@ vMF(h / |h|, kappa) scaled to radius sqrt(d) (so dim h = d), mixed with probabil
 z_mix with B(s), s a state from the same episode as h (Config.rfb_z_states="episode")
 or any dataset state ("dataset": the paper's "s ~ D" and the authors' code, as FB).
 
+What F is given as h (Config.h_from): "mu", the standardised mean above (the paper's), or
+"context": a linear head c(mu) regressed on the layout's context features k(layout) (gridworlds:
+its interior wall map, the walls oracle's h; agents/oracle.py) with loss
+enc_context_coef * mean |c(mu) - k(layout)|^2 added to the encoder's, and h = c(mu). Trained
+on the train layouts' features only; at test time h = c(mu(one reward-free episode)), a
+prediction of the unseen layout's walls from what the episode saw (least squares: for a
+0/1 wall, the probability of a wall given the episode).
+
 Schedules (Config.encoder_mode):
   "staged" (default, the paper's): steps [0, enc_steps) train f_dyn only; at step
     enc_steps the encoder is frozen and mu (and sigma) of every episode's context
@@ -33,6 +41,7 @@ from typing import Any
 
 import jax
 import jax.numpy as jnp
+import flax.linen as nn
 import optax
 from flax import struct
 
@@ -62,13 +71,30 @@ class BeliefFBAgent(FBAgent):
     """Belief-FB. See the module docstring."""
 
     @property
-    def h_dim(self) -> int:
+    def mu_dim(self) -> int:
+        """The encoder's q(h | episode) dimension (Config.h_dim, 0 -> d)."""
         return self.cfg.context_dim
+
+    @property
+    def h_dim(self) -> int:
+        """What F reads: mu_dim, or with h_from="context" the number of context features."""
+        if self.cfg.h_from == "context":
+            return self.layout_features.shape[-1]
+        return self.mu_dim
+
+    @property
+    def layout_features(self) -> Array:
+        """k(layout) of every train layout: [n_train_layouts, k] (env.context_features)."""
+        return jax.vmap(self.env.context_features)(self.env.contexts("train"))
 
     @property
     def encoder_net(self) -> ContextEncoder:
         c = self.cfg
-        return ContextEncoder(self.h_dim, c.enc_embed, c.enc_heads, c.enc_layers, c.enc_mlp)
+        return ContextEncoder(self.mu_dim, c.enc_embed, c.enc_heads, c.enc_layers, c.enc_mlp)
+
+    @property
+    def context_head(self) -> nn.Dense:
+        return nn.Dense(self.h_dim)
 
     @property
     def predictor_net(self) -> Predictor:
@@ -118,14 +144,21 @@ class BeliefFBAgent(FBAgent):
         """
         return (mu - enc["h_mean"]) / enc["h_std"]
 
+    def h_of_mu(self, enc, mu: Array) -> Array:
+        """F's h from the encoder's mean [..., mu_dim]: standardised mu, or (h_from="context")
+        the head's predicted context features c(mu) [..., k]."""
+        if self.cfg.h_from == "context":
+            return self.context_head.apply(enc["context_head"], mu)
+        return self.standardize(enc, mu)
+
     def context_h(self, params: FBParams, context: Context) -> Array:
-        """h = standardised mu(f_dyn(one reward-free episode)): [h_dim]."""
+        """h of one reward-free episode (h_of_mu of its mu): [h_dim]."""
         mu, _ = self.encode(params.enc, context.obs[:-1], context.action, context.obs[1:])
-        return self.standardize(params.enc, mu)
+        return self.h_of_mu(params.enc, mu)
 
     # -- init ---------------------------------------------------------------------------------
     def init(self, key: Array) -> BeliefState:
-        k_F, k_B, k_enc, k_pred = jax.random.split(key, 4)
+        k_F, k_B, k_enc, k_pred, k_head = jax.random.split(key, 5)
         c = self.cfg
         obs = jnp.asarray([self.env.obs_low], jnp.float32)
         feat = self.obs_features(obs)
@@ -133,9 +166,11 @@ class BeliefFBAgent(FBAgent):
         tok = self.tokens(obs[:, None], a0[:, None], obs[:, None])           # [1, 1, token]
         enc = {"encoder": self.encoder_net.init(k_enc, tok, jnp.ones((1, 1), bool)),
                "predictor": self.predictor_net.init(k_pred, feat, self.action_features(a0),
-                                                    jnp.zeros((1, self.h_dim))),
+                                                    jnp.zeros((1, self.mu_dim))),
                # statistics of mu, set when the h table is built (identity until then)
-               "h_mean": jnp.zeros((self.h_dim,)), "h_std": jnp.ones((self.h_dim,))}
+               "h_mean": jnp.zeros((self.mu_dim,)), "h_std": jnp.ones((self.mu_dim,))}
+        if c.h_from == "context":
+            enc["context_head"] = self.context_head.init(k_head, jnp.zeros((1, self.mu_dim)))
         params = self.init_fb_params(k_F, k_B).replace(enc=enc)
         n_ep = c.n_train_layouts * c.episodes_per_layout
         table = jnp.zeros((n_ep, self.num_windows, self.h_dim))
@@ -158,6 +193,9 @@ class BeliefFBAgent(FBAgent):
         which pulls together the h of windows of one layout and pushes apart those of
         different layouts (not the paper's: for dynamics that barely change one step, such
         as AntWind's wind under ground contact, the predictor alone need not use h).
+
+        With h_from="context", plus enc_context_coef * mean_{i,j} (c(mu_i) - k(context_i))_j^2,
+        the head's regression on the window's layout features (module docstring).
         """
         mu, log_sigma = self.encode(enc, *window)
         h = mu + jnp.exp(log_sigma) * jax.random.normal(key, mu.shape)
@@ -171,6 +209,11 @@ class BeliefFBAgent(FBAgent):
             nce = self.contrastive_loss(mu, mu_target, context)
             loss = loss + self.cfg.enc_contrast * nce
             metrics["enc_nce"] = nce
+        if self.cfg.h_from == "context":
+            pred = self.context_head.apply(enc["context_head"], mu)
+            ctx_mse = jnp.mean((pred - self.layout_features[context]) ** 2)
+            loss = loss + self.cfg.enc_context_coef * ctx_mse
+            metrics["enc_ctx_mse"] = ctx_mse
         return loss, (metrics, mu)
 
     def predictor_mse(self, enc, h: Array, obs: Array, action: Array, next_obs: Array) -> Array:
@@ -238,6 +281,9 @@ class BeliefFBAgent(FBAgent):
 
         table, log_sigma = jax.lax.stop_gradient(
             jax.lax.map(one_episode, (dataset.obs, dataset.action, starts), batch_size=256))
+        if self.cfg.h_from == "context":  # h = c(mu); no sigma on its scale (h_noise is off)
+            h = self.h_of_mu(state.params.enc, table)
+            return state.replace(h_table=h, h_sigma_table=jnp.zeros_like(h))
         if self.cfg.h_standardize:
             enc = dict(state.params.enc, h_mean=table.mean((0, 1)), h_std=table.std((0, 1)) + 1e-6)
         else:
@@ -258,8 +304,8 @@ class BeliefFBAgent(FBAgent):
         return h
 
     # -- the update ----------------------------------------------------------------------------
-    # what encoder_loss reports (enc_nce only with enc_contrast > 0): the encoder phase's metrics
-    ENCODER_METRICS = ("enc_mse", "enc_kl", "h_norm", "enc_nce")
+    # what encoder_loss reports (enc_nce with enc_contrast > 0, enc_ctx_mse with h_from="context")
+    ENCODER_METRICS = ("enc_mse", "enc_kl", "h_norm", "enc_nce", "enc_ctx_mse")
 
     @staticmethod
     def _pad(metrics: dict, other_shapes: dict) -> dict:
