@@ -15,8 +15,9 @@ scoring the other 20%:
   fitted on every train episode and scored on fresh episodes of the 20 held-out test layouts
   (does h describe walls it has never seen?): the fraction of interior cells classified
   right, and the balanced accuracy (mean of wall and free recall) on the cells that are
-  walls in some layouts and free in others, beside the mean train map's. --json appends
-  one line of these figures.
+  walls in some layouts and free in others, beside the mean train map's; with
+  --set h_from=context also the encoder's own predicted wall map c(mu), the h F reads.
+  --json appends one line of these figures.
 Also prints the predictor's MSE with each episode's own h and with h of a random other
 episode (the gap is what h buys the predictor).
 """
@@ -153,6 +154,14 @@ def wall_probe(env, agent, enc, cfg, mu, layout, seed, test_episodes=20) -> dict
     print(f"wall-map probe on unseen test layouts: all cells {res['test_wall_cell_accuracy']:.3f}; balanced "
           f"accuracy on the cells that differ between layouts {res['test_varying_cell_balanced_accuracy']:.3f} "
           f"(the mean train map: {res['mean_map_varying_cell_balanced_accuracy']:.3f}, 0.5 = chance)")
+    if cfg.h_from == "context":  # the h F reads: the encoder's own head c(mu), no probe fitted
+        h_t = np.asarray(agent.context_head.apply(enc["context_head"], jnp.asarray(mu_t)))
+        truth_f = test_w[np.asarray(tds.context_id)]
+        res.update(head_varying_cell_balanced_accuracy=balanced(h_t > 0.5),
+                   head_test_mse=float(np.mean((h_t - truth_f) ** 2)),
+                   mean_map_test_mse=float(np.mean((train_w.mean(0) - truth_f) ** 2)))
+        print(f"h = c(mu) on unseen test layouts: balanced accuracy {res['head_varying_cell_balanced_accuracy']:.3f}; "
+              f"MSE to the wall map {res['head_test_mse']:.4f} (the mean train map: {res['mean_map_test_mse']:.4f})")
     return res
 
 

@@ -107,6 +107,7 @@ class Config:
     # for gridworlds the wall map, the walls oracle's input inferred from one episode)
     h_from: str = "mu"
     enc_context_coef: float = 1.0  # weight of that head's regression loss (h_from="context")
+    h_train_true: bool = False   # h_from="context": F trains on the train layouts' true features (the walls oracle's h), c(mu) only at test
     enc_embed: int = 32          # transformer width
     enc_heads: int = 4           # attention heads per block
     enc_layers: int = 2          # transformer blocks (0: a per-token MLP, mean-pooled)
@@ -244,6 +245,8 @@ class Config:
             if self.encoder_mode != "staged" or self.h_noise:
                 bad("h_from", self.h_from, "'mu' with encoder_mode='joint' or h_noise=True "
                     "('context' reads the frozen encoder's mean)")
+        if self.h_train_true and self.h_from != "context":
+            bad("h_train_true", self.h_train_true, "False unless h_from='context' (it replaces c(mu) in training)")
         if not self.enc_context_coef >= 0:
             bad("enc_context_coef", self.enc_context_coef, "enc_context_coef >= 0")
         if self.algo == "rfb" and self.h_dim not in (0, self.d):

@@ -18,7 +18,8 @@ its interior wall map, the walls oracle's h; agents/oracle.py) with loss
 enc_context_coef * mean |c(mu) - k(layout)|^2 added to the encoder's, and h = c(mu). Trained
 on the train layouts' features only; at test time h = c(mu(one reward-free episode)), a
 prediction of the unseen layout's walls from what the episode saw (least squares: for a
-0/1 wall, the probability of a wall given the episode).
+0/1 wall, the probability of a wall given the episode). With h_train_true, F trains on the true
+features k(layout) instead (the walls oracle's F) and is given c(mu) only at test time.
 
 Schedules (Config.encoder_mode):
   "staged" (default, the paper's): steps [0, enc_steps) train f_dyn only; at step
@@ -296,6 +297,8 @@ class BeliefFBAgent(FBAgent):
     def train_context(self, state: BeliefState, dataset, batch: Transitions, key: Array) -> Array:
         """h of a context window from each transition's own episode (from the frozen table):
         its mean, or with Config.h_noise a draw mu + sigma eps, eps ~ N(0, I) per row."""
+        if self.cfg.h_train_true:  # F learns from the exact features; c(mu) is its test-time input
+            return self.layout_features[dataset.context_id[batch.episode]]
         w = jax.random.randint(key, batch.episode.shape, 0, self.num_windows)
         h = state.h_table[batch.episode, w]
         if self.cfg.h_noise:  # fold_in: the window draw keeps the key it always had
