@@ -142,6 +142,25 @@ def test_h_from_context_is_belief_fbs_staged_mean_only(bad):
         zsbfm.Config.preset("fourrooms", algo, h_from="context", **bad)
     with pytest.raises(ValueError, match="Config.h_from='walls'"):
         zsbfm.Config.preset("fourrooms", "bfb", h_from="walls")
+    with pytest.raises(ValueError, match="Config.h_train_true=True"):
+        zsbfm.Config.preset("fourrooms", "bfb", h_train_true=True)
+
+
+def test_h_train_true_trains_f_on_each_transitions_own_layout_walls():
+    from zsbfm.data import collect
+    from zsbfm.data.samplers import Transitions
+
+    cfg = zsbfm.Config.preset("fourrooms", "bfb", n_train_layouts=3, episodes_per_layout=2, h_from="context",
+                              h_train_true=True)
+    env = zsbfm.make_env("fourrooms", n_train=3)
+    agent = make_agent(cfg, env)
+    ds = jax.jit(lambda k: collect(env, k, env.contexts("train"), 2))(jax.random.PRNGKey(0))
+    episode = jnp.array([5, 0, 3, 2])
+    batch = Transitions(obs=ds.obs[episode, 0], action=ds.action[episode, 0], next_obs=ds.obs[episode, 1],
+                        episode=episode, t=jnp.zeros(4, jnp.int32))
+    h = agent.train_context(None, ds, batch, jax.random.PRNGKey(1))   # reads no state: the table is unused
+    walls = np.asarray(env.contexts("train").walls)[np.asarray(ds.context_id)[np.asarray(episode)]]
+    np.testing.assert_array_equal(np.asarray(h), walls[:, 1:-1, 1:-1].reshape(4, -1).astype(np.float32))
 
 
 def test_h_from_context_predicts_the_wall_map_and_is_what_f_reads():
