@@ -182,3 +182,23 @@ def test_render_writes_png(tmp_path):
              goals=[(8, 8)], title="x")])
     with open(path, "rb") as f:
         assert f.read(8) == b"\x89PNG\r\n\x1a\n"
+
+
+def test_context_coverage_finds_the_doors_and_what_an_episode_reveals():
+    """experiments/fb_diagnostics/context_coverage.py: the doors of a Four-Rooms layout built
+    from its parameters, and the cells an episode reveals (visited, or bumped into)."""
+    import os
+    import sys
+
+    sys.path.insert(0, os.path.join(os.path.dirname(__file__), "..", "experiments", "fb_diagnostics"))
+    from context_coverage import doors, revealed
+    from zsbfm.envs.gridworld import doors_walls, fourrooms_walls
+
+    c, r, du, dd, dl, dr = 4, 6, 2, 8, 1, 7
+    walls = np.asarray(fourrooms_walls(jnp.asarray([c, r, du, dd, dl, dr])))
+    assert sorted(doors(walls)) == sorted([(du, c), (dd, c), (r, dl), (r, dr)])
+    assert sorted(doors(np.asarray(doors_walls(jnp.asarray([2, 6]))))) == [(2, 3), (6, 5)]
+    # from (1, 1): right to (2, 1), then up into the border (stays: reveals the wall (2, 0))
+    cells = np.array([[1, 1], [2, 1], [2, 1]])
+    seen = revealed(cells, np.array([3, 0]), walls.shape)
+    assert set(zip(*np.nonzero(seen))) == {(1, 1), (1, 2), (0, 2)}  # (y, x)

@@ -1,0 +1,98 @@
+"""What one test-time context episode can tell about a gridworld layout, for any encoder.
+
+    python experiments/fb_diagnostics/context_coverage.py [--env fourrooms doors] [--episodes 20]
+        [--json results/context_coverage.json]
+
+At test time a belief agent infers h from one reward-free episode of the behaviour policy
+(`evaluate.context_episode`: the same policy and length as the training episodes). The
+episode reveals a cell of the layout only by visiting it (free) or by bumping into it (a
+move that left the agent in place: a wall). This counts, over fresh episodes of the 20
+held-out layouts (and of the train layouts, the same numbers up to sampling):
+- the doors (the free cells of the wall lines) that the episode passes through: the fraction of the layout's doors, and how many episodes pass all / none;
+- the varying cells (walled in some layout of the family, free in another) it reveals.
+What an episode does not reveal, no encoder can read from it: it is left to the prior over
+the family (and, for a train layout, to recognising it from the part seen).
+"""
+from __future__ import annotations
+
+import argparse
+import json
+
+import jax
+import numpy as np
+
+import zsbfm
+from zsbfm.config import Config
+from zsbfm.data import collect
+from zsbfm.envs.gridworld import ACTION_DELTAS
+
+
+def doors(walls: np.ndarray) -> list[tuple[int, int]]:
+    """(y, x) of the doors: free interior cells on a wall line, a row or column whose interior
+    is at least half wall (Four-Rooms: x = c and y = r; Doors: x = 3 and x = 5)."""
+    inner = walls[1:-1, 1:-1]
+    wall_col, wall_row = inner.mean(0) >= 0.5, inner.mean(1) >= 0.5
+    return [(y + 1, x + 1) for y, x in zip(*np.nonzero(~inner)) if wall_col[x] or wall_row[y]]
+
+
+def revealed(cells: np.ndarray, actions: np.ndarray, shape) -> np.ndarray:
+    """bool[H, W]: cells an episode visited (cells [T+1, 2] as (x, y)) or bumped into."""
+    seen = np.zeros(shape, bool)
+    seen[cells[:, 1], cells[:, 0]] = True
+    stayed = np.all(cells[1:] == cells[:-1], axis=1)
+    bumped = cells[:-1][stayed] + ACTION_DELTAS[actions[stayed]]
+    seen[bumped[:, 1], bumped[:, 0]] = True
+    return seen
+
+
+def coverage(env_name: str, episodes: int, seed: int) -> dict:
+    cfg = Config.preset(env_name, "bfb", "cpu")
+    env = zsbfm.make_env(env_name, n_train=cfg.n_train_layouts)
+    walls = {s: np.asarray(env.contexts(s).walls) for s in ("train", "test")}
+    every = np.concatenate(list(walls.values()))
+    varies = every.min(0) != every.max(0)
+    out = {"env": env_name, "episode_len": env.episode_len, "episodes_per_layout": episodes,
+           "varying_cells": int(varies.sum())}
+    for split, w in walls.items():
+        ds = jax.jit(lambda k: collect(env, k, env.contexts(split), episodes))(jax.random.PRNGKey(seed))
+        cells = np.round(np.asarray(ds.obs)).astype(int)
+        acts, cid = np.asarray(ds.action), np.asarray(ds.context_id)
+        door_frac, vary_frac = [], []
+        for e in range(len(cells)):
+            seen = revealed(cells[e], acts[e], varies.shape)
+            d = doors(w[cid[e]])
+            door_frac.append(np.mean([seen[c] for c in d]))
+            vary_frac.append(seen[varies].mean())
+        door_frac = np.asarray(door_frac)
+        out[split] = {"doors_per_layout": float(np.mean([len(doors(x)) for x in w])),
+                      "door_fraction_passed": float(door_frac.mean()),
+                      "episodes_passing_all_doors": float(np.mean(door_frac == 1)),
+                      "episodes_passing_no_door": float(np.mean(door_frac == 0)),
+                      "varying_cells_revealed": float(np.mean(vary_frac))}
+        r = out[split]
+        print(f"{env_name} {split} layouts ({len(cells)} episodes of {env.episode_len} steps): "
+              f"{r['doors_per_layout']:.0f} doors; an episode passes {r['door_fraction_passed']:.2f} of them, "
+              f"all of them in {r['episodes_passing_all_doors']:.2f} of episodes, none in "
+              f"{r['episodes_passing_no_door']:.2f}; it reveals {r['varying_cells_revealed']:.2f} of the "
+              f"{out['varying_cells']} cells that differ between layouts")
+    return out
+
+
+def main():
+    p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("--env", nargs="+", default=["fourrooms", "doors"], choices=["fourrooms", "doors"])
+    p.add_argument("--episodes", type=int, default=20, help="fresh episodes per layout")
+    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--json", default="", help="write the figures to this JSON file")
+    a = p.parse_args()
+    if a.episodes <= 0:
+        p.error(f"--episodes must be a positive integer, got {a.episodes}")
+    res = [coverage(e, a.episodes, a.seed) for e in a.env]
+    if a.json:
+        with open(a.json, "w") as f:
+            json.dump(res, f, indent=1)
+        print(f"wrote {a.json}")
+
+
+if __name__ == "__main__":
+    main()
