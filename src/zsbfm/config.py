@@ -98,7 +98,7 @@ class Config:
     actor_bc: float = 0.0            # TD3+BC weight: 0 = the paper's pure -Q actor (agents/fb.py)
 
     # --- Belief-FB / Rotation-FB (ignored by fb) -------------------------------------------
-    h_dim: int = 0               # dimension of the context h; 0 -> d (rfb needs h_dim = d)
+    h_dim: int = 0               # dimension of the encoder's mu (F's h unless h_from="context"); 0 -> d (rfb needs h_dim = d)
     h_in_sa: bool = False        # h also enters F's (s, a) preprocessor (paper: only with z)
     h_noise: bool = False        # FB trains on h ~ q(h | episode) = mu + sigma eps, a fresh draw per update (the authors'); False: mu
     h_standardize: bool = True   # h standardised by the dataset statistics of mu (agents/belief.py); False: the encoder's own scale
@@ -240,11 +240,13 @@ class Config:
             bad("h_from", self.h_from, f"one of {H_FROM}")
         if self.h_from == "context":
             if self.algo != "bfb":
-                bad("h_from", self.h_from, f"'mu' for algo={self.algo!r} ('context' is Belief-FB's: "
-                    "rfb needs h in R^d)")
+                bad("h_from", self.h_from, f"'mu' for algo={self.algo!r} ('context' is Belief-FB's only)")
             if self.encoder_mode != "staged" or self.h_noise:
-                bad("h_from", self.h_from, "'mu' with encoder_mode='joint' or h_noise=True "
-                    "('context' reads the frozen encoder's mean)")
+                bad("h_from", self.h_from, "'mu' here: 'context' needs encoder_mode='staged' and "
+                    f"h_noise=False (got {self.encoder_mode!r}, {self.h_noise}): it reads the frozen encoder's mean")
+            if not self.enc_context_coef > 0:
+                bad("enc_context_coef", self.enc_context_coef,
+                    "enc_context_coef > 0 with h_from='context' (0 leaves the head c(mu) untrained)")
         if self.h_train_true and self.h_from != "context":
             bad("h_train_true", self.h_train_true, "False unless h_from='context' (it replaces c(mu) in training)")
         if not self.enc_context_coef >= 0:
@@ -313,8 +315,9 @@ class Config:
 
     @property
     def context_dim(self) -> int:
-        """Dimension of h: the encoder's output for bfb/rfb, the number of train layouts for
-        oracle (a one-hot layout index), 0 for context-free algorithms."""
+        """Dimension of the context: the encoder's mu for bfb/rfb (F's h, unless Belief-FB's
+        h_from="context"), the number of train layouts for oracle (a one-hot layout index), 0
+        for context-free algorithms."""
         if self.algo == "oracle" and self.oracle_context == "id":
             return self.n_train_layouts
         return (self.h_dim or self.d) if self.algo in BELIEF_ALGOS else 0

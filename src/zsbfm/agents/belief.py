@@ -63,7 +63,7 @@ class BeliefState:
     opt_state: Any            # FB optimiser (over all of params; enc gets zero grads when staged)
     step: Array
     enc_opt_state: Any        # encoder pre-training optimiser
-    h_table: Array            # [episodes, windows, h_dim] h = standardised mu, filled at step enc_steps (staged)
+    h_table: Array            # [episodes, windows, h_dim] F's h (h_of_mu), filled at step enc_steps (staged)
     h_sigma_table: Array      # [episodes, windows, h_dim] q's sigma on h's scale (read when Config.h_noise)
 
 
@@ -79,8 +79,9 @@ class BeliefFBAgent(FBAgent):
     @property
     def h_dim(self) -> int:
         """What F reads: mu_dim, or with h_from="context" the number of context features."""
-        if self.cfg.h_from == "context":
-            return self.layout_features.shape[-1]
+        if self.cfg.h_from == "context":  # the size of one layout's features (traces nothing)
+            one = jax.tree_util.tree_map(lambda x: x[0], self.env.contexts("train"))
+            return jax.eval_shape(self.env.context_features, one).shape[-1]
         return self.mu_dim
 
     @property
@@ -131,7 +132,7 @@ class BeliefFBAgent(FBAgent):
         return jnp.concatenate(parts, -1)
 
     def encode(self, enc_params, obs, action, next_obs, mask=None):
-        """q(h | transitions): (mu, log_sigma), each [..., h_dim]. obs [..., N, obs_dim]."""
+        """q(h | transitions): (mu, log_sigma), each [..., mu_dim]. obs [..., N, obs_dim]."""
         tok = self.tokens(obs, action, next_obs)
         mask = jnp.ones(tok.shape[:-1], bool) if mask is None else mask
         return self.encoder_net.apply(enc_params["encoder"], tok, mask)
@@ -278,7 +279,7 @@ class BeliefFBAgent(FBAgent):
         def one_episode(args):
             obs, action, st = args
             idx = st[:, None] + jnp.arange(L)[None]                       # [W, L]
-            return self.encode(state.params.enc, obs[idx], action[idx], obs[idx + 1])  # 2 x [W, h_dim]
+            return self.encode(state.params.enc, obs[idx], action[idx], obs[idx + 1])  # 2 x [W, mu_dim]
 
         table, log_sigma = jax.lax.stop_gradient(
             jax.lax.map(one_episode, (dataset.obs, dataset.action, starts), batch_size=256))
