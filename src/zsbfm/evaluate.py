@@ -151,7 +151,8 @@ def split_results(success) -> dict:
             "per_goal": s.mean(1).tolist()}
 
 
-def evaluate(run, contexts=None, goals=None, key=None, split: str = "test", protocol: str | None = None):
+def evaluate(run, contexts=None, goals=None, key=None, split: str = "test", protocol: str | None = None,
+             agent=None):
     """Evaluate every seed of a trained `Run` zero-shot.
 
     contexts: stacked contexts (default: env.contexts(split)); goals: float32[n_contexts,
@@ -166,6 +167,8 @@ def evaluate(run, contexts=None, goals=None, key=None, split: str = "test", prot
     "paper", "dense", ...): then returns the (score [seeds, n_contexts, G], valid) pair of
     that protocol on `contexts`, as in run.results["protocols"] (the score is the mean of
     the valid tasks, `protocol_score`).
+    agent: None for the run's own agent (`make_agent(run.cfg, env)`); or another agent over
+    the same parameters, for a diagnostic (e.g. one whose context_h is told the layout).
     """
     from zsbfm.agents import make_agent
     from zsbfm.data.sources import make_env_for
@@ -173,7 +176,7 @@ def evaluate(run, contexts=None, goals=None, key=None, split: str = "test", prot
 
     cfg = run.cfg
     env = make_env_for(cfg)
-    agent = make_agent(cfg, env)
+    agent = make_agent(cfg, env) if agent is None else agent
     if split not in ("train", "test"):
         raise ValueError(f"split={split!r} is invalid: expected 'train' or 'test'")
     contexts = env.contexts(split) if contexts is None else contexts
