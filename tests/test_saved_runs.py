@@ -44,3 +44,29 @@ def test_setting_a_removed_field_names_it():
         zsbfm.Config.preset("fourrooms", "bfb", h_cond="film")
     with pytest.raises(ValueError, match="Config.lr_schedule='cosine' is a removed option"):
         zsbfm.Config.preset("fourrooms").with_overrides(["lr_schedule=cosine"])
+
+
+def test_evaluate_takes_another_agent_over_the_same_parameters():
+    """evaluate(run, agent=...): the run's own agent gives its numbers; an agent that sets
+    every goal's z to B of the start cell (a diagnostic's variant) gives others."""
+    import dataclasses
+
+    import jax.numpy as jnp
+
+    from zsbfm.agents import make_agent
+    from zsbfm.agents.base import Task
+    from zsbfm.data.sources import make_env_for
+
+    run = zsbfm.load(FIXTURE)
+    env = make_env_for(run.cfg, progress=False)
+    own = make_agent(run.cfg, env)
+
+    class StartGoal(type(own)):
+        def goal_task(self, params, goal_obs, context):
+            return Task(z=self.backward(params.B, jnp.ones_like(goal_obs)), h=self.context_h(params, context))
+
+    other = StartGoal(**{f.name: getattr(own, f.name) for f in dataclasses.fields(own)})
+    reported = run.results["protocols"]["dense"]["train"]
+    score = lambda agent: np.asarray(protocol_score(*zsbfm.evaluate(run, split="train", protocol="dense", agent=agent)))
+    np.testing.assert_allclose(score(own), reported, atol=1e-4)
+    assert not np.allclose(score(other), reported, atol=1e-2)
