@@ -149,6 +149,15 @@ def comparable(cfg: Config) -> dict:
     return json.loads(json.dumps(d))  # tuples as lists, as read back from JSON
 
 
+def same_config(recorded: dict, today: Config) -> bool:
+    """Whether a row's recorded config is today's: every recorded field equal, and every field
+    added to Config since at its default (a new option whose default keeps the old behaviour)."""
+    now = comparable(today)
+    defaults = json.loads(json.dumps({f.name: f.default for f in dataclasses.fields(Config)}))
+    return all(k in now and now[k] == v for k, v in recorded.items()) and \
+        all(now[k] == defaults[k] for k in now if k not in recorded)
+
+
 def merge_rows(path: str, header: dict, rows: dict, current=None) -> dict:
     """rows over the rows already in `path` when it holds a table of the same header (env,
     size, seeds, overrides); every method in ORDER. Another header: rows alone.
@@ -162,7 +171,7 @@ def merge_rows(path: str, header: dict, rows: dict, current=None) -> dict:
         if all(prev.get(k) == v for k, v in header.items()):
             old = prev.get("methods", {})
     for algo in [a for a in old if a not in rows and current is not None and "config" in old[a]]:
-        if old[algo]["config"] != comparable(current(algo)):
+        if not same_config(old[algo]["config"], current(algo)):
             print(f"  {path}: dropped the {algo} row (measured {old[algo].get('measured', '?')} "
                   "with another config than today's preset)", flush=True)
             del old[algo]

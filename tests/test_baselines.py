@@ -210,3 +210,7 @@ def test_table_merges_a_partial_table_into_the_same_header_only(tmp_path):
         json.dump({**header, "methods": {"fb": {**row(0.1), "config": table.comparable(today("fb"))},
                                          "bfb": {**row(0.2), "config": table.comparable(today("fb"))}}}, f)
     assert list(table.merge_rows(path, header, {"rfb": row(0.3)}, today)) == ["fb", "rfb"]
+    # a field added to Config since the row was measured: kept at its default, dropped off it
+    recorded = {k: v for k, v in table.comparable(today("bfb")).items() if k != "h_from"}
+    assert table.same_config(recorded, today("bfb"))
+    assert not table.same_config(recorded, today("bfb").replace(h_from="context"))
