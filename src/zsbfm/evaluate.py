@@ -152,7 +152,7 @@ def split_results(success) -> dict:
 
 
 def evaluate(run, contexts=None, goals=None, key=None, split: str = "test", protocol: str | None = None,
-             agent=None):
+             agent=None, context_len: int | None = None):
     """Evaluate every seed of a trained `Run` zero-shot.
 
     contexts: stacked contexts (default: env.contexts(split)); goals: float32[n_contexts,
@@ -169,6 +169,8 @@ def evaluate(run, contexts=None, goals=None, key=None, split: str = "test", prot
     the valid tasks, `protocol_score`).
     agent: None for the run's own agent (`make_agent(run.cfg, env)`); or another agent over
     the same parameters, for a diagnostic (e.g. one whose context_h is told the layout).
+    context_len: None for cfg.context_len; or the steps of the test-time context episode (a
+    diagnostic: how much context the agent's h needs; the encoder pools any number).
     """
     from zsbfm.agents import make_agent
     from zsbfm.data.sources import make_env_for
@@ -179,6 +181,10 @@ def evaluate(run, contexts=None, goals=None, key=None, split: str = "test", prot
     agent = make_agent(cfg, env) if agent is None else agent
     if split not in ("train", "test"):
         raise ValueError(f"split={split!r} is invalid: expected 'train' or 'test'")
+    if context_len is None:
+        context_len = cfg.context_len
+    elif not isinstance(context_len, int) or context_len <= 0:
+        raise ValueError(f"context_len={context_len!r} is invalid: expected a positive integer")
     contexts = env.contexts(split) if contexts is None else contexts
     seeds = jax.tree_util.tree_leaves(run.params)[0].shape[0]
     if key is None:
@@ -202,10 +208,10 @@ def evaluate(run, contexts=None, goals=None, key=None, split: str = "test", prot
         if protocol not in protocols_of(env):
             raise ValueError(f"protocol={protocol!r} is invalid for {cfg.env}: expected one of {protocols_of(env)}")
         fn = jax.jit(jax.vmap(lambda p, k, r: evaluate_protocol(agent, env, p, k, contexts, protocol,
-                                                                 cfg.eval_episode_len, cfg.context_len, r),
+                                                                 cfg.eval_episode_len, context_len, r),
                               in_axes=(0, 0, 0 if reward_obs is not None else None)))
         return fn(run.params, k_split, reward_obs)
     fn = jax.jit(jax.vmap(lambda p, k, r: evaluate_params(agent, env, p, k, contexts, goals,
-                                                          cfg.eval_episode_len, cfg.context_len, r),
+                                                          cfg.eval_episode_len, context_len, r),
                           in_axes=(0, 0, 0 if reward_obs is not None else None)))
     return fn(run.params, k_split, reward_obs)
