@@ -70,3 +70,8 @@ def test_evaluate_takes_another_agent_over_the_same_parameters():
     score = lambda agent: np.asarray(protocol_score(*zsbfm.evaluate(run, split="train", protocol="dense", agent=agent)))
     np.testing.assert_allclose(score(own), reported, atol=1e-4)
     assert not np.allclose(score(other), reported, atol=1e-2)
+
+
+def test_evaluate_rejects_a_bad_context_len():
+    with pytest.raises(ValueError, match="context_len=0"):
+        zsbfm.evaluate(zsbfm.load(FIXTURE), context_len=0)
