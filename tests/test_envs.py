@@ -200,5 +200,5 @@ def test_context_coverage_finds_the_doors_and_what_an_episode_reveals():
     assert sorted(doors(np.asarray(doors_walls(jnp.asarray([2, 6]))))) == [(2, 3), (6, 5)]
     # from (1, 1): right to (2, 1), then up into the border (stays: reveals the wall (2, 0))
     cells = np.array([[1, 1], [2, 1], [2, 1]])
-    seen = revealed(cells, np.array([3, 0]), walls.shape)
+    seen = np.asarray(revealed(cells, np.array([3, 0]), walls.shape))
     assert set(zip(*np.nonzero(seen))) == {(1, 1), (1, 2), (0, 2)}  # (y, x)

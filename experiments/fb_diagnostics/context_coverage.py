@@ -19,6 +19,7 @@ import argparse
 import json
 
 import jax
+import jax.numpy as jnp
 import numpy as np
 
 import zsbfm
@@ -35,14 +36,14 @@ def doors(walls: np.ndarray) -> list[tuple[int, int]]:
     return [(y + 1, x + 1) for y, x in zip(*np.nonzero(~inner)) if wall_col[x] or wall_row[y]]
 
 
-def revealed(cells: np.ndarray, actions: np.ndarray, shape) -> np.ndarray:
-    """bool[H, W]: cells an episode visited (cells [T+1, 2] as (x, y)) or bumped into."""
-    seen = np.zeros(shape, bool)
-    seen[cells[:, 1], cells[:, 0]] = True
-    stayed = np.all(cells[1:] == cells[:-1], axis=1)
-    bumped = cells[:-1][stayed] + ACTION_DELTAS[actions[stayed]]
-    seen[bumped[:, 1], bumped[:, 0]] = True
-    return seen
+def revealed(cells, actions, shape) -> jax.Array:
+    """bool[H, W]: the cells an episode visited (cells int[T+1, 2] as (x, y)) or bumped into
+    (a move, actions int[T], that left it in place). Jittable: h_swap.py builds h from it."""
+    cells = jnp.asarray(cells)
+    seen = jnp.zeros(shape, bool).at[cells[:, 1], cells[:, 0]].set(True)
+    stayed = jnp.all(cells[1:] == cells[:-1], axis=-1)
+    bumped = jnp.where(stayed[:, None], cells[:-1] + jnp.asarray(ACTION_DELTAS)[actions], cells[:-1])
+    return seen.at[bumped[:, 1], bumped[:, 0]].set(True)
 
 
 def coverage(env_name: str, episodes: int, seed: int) -> dict:
@@ -57,9 +58,9 @@ def coverage(env_name: str, episodes: int, seed: int) -> dict:
         ds = jax.jit(lambda k: collect(env, k, env.contexts(split), episodes))(jax.random.PRNGKey(seed))
         cells = np.round(np.asarray(ds.obs)).astype(int)
         acts, cid = np.asarray(ds.action), np.asarray(ds.context_id)
+        seen_all = np.asarray(jax.vmap(lambda c, a_: revealed(c, a_, varies.shape))(cells, acts))
         door_frac, vary_frac = [], []
-        for e in range(len(cells)):
-            seen = revealed(cells[e], acts[e], varies.shape)
+        for e, seen in enumerate(seen_all):
             d = doors(w[cid[e]])
             door_frac.append(np.mean([seen[c] for c in d]))
             vary_frac.append(seen[varies].mean())

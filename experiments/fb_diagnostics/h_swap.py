@@ -23,43 +23,37 @@ import numpy as np
 import zsbfm
 from zsbfm.agents import make_agent
 from zsbfm.data.sources import make_env_for
-from zsbfm.envs.gridworld import ACTION_DELTAS
 from zsbfm.evaluate import protocol_score
 
-
-def told_the_layout(agent):
-    """The same agent, its context_h returning the layout's true context features."""
-    class Told(type(agent)):
-        def context_h(self, params, context):
-            return self.env.context_features(context.layout)
-    return Told(**{f.name: getattr(agent, f.name) for f in dataclasses.fields(agent)})
+from context_coverage import revealed  # this script's folder is on sys.path
 
 
-def revealed_map(agent):
-    """The same agent, its h = what the context episode itself shows of the map: the true wall
-    map on the cells the episode entered or bumped into, the train layouts' mean map elsewhere
-    (the best an encoder of that episode could give cell by cell; context_coverage.py)."""
-    prior = agent.layout_features.mean(0)
+def with_context_h(agent, fn):
+    """The same agent over the same parameters, its context_h(params, context) replaced by
+    fn(agent, params, context) (agent: the original, so fn may call its own context_h)."""
+    swapped = type(type(agent).__name__, (type(agent),),
+                   {"context_h": lambda self, params, context: fn(agent, params, context)})
+    return swapped(**{f.name: getattr(agent, f.name) for f in dataclasses.fields(agent)})
+
+
+def true_map(agent, params, context):
+    """The layout's true context features (the walls oracle's input)."""
+    return agent.env.context_features(context.layout)
+
+
+def rounded(agent, params, context):
+    """c(mu) rounded to a 0/1 map (the format F trained on with h_train_true)."""
+    return jnp.round(jnp.clip(agent.context_h(params, context), 0.0, 1.0))
+
+
+def revealed_map(agent, params, context):
+    """What the context episode itself shows of the map: the true wall map on the cells it
+    entered or bumped into (context_coverage.revealed), the train layouts' mean map elsewhere
+    (the best an encoder of that episode could give cell by cell)."""
     size = agent.env.size
-
-    class Revealed(type(agent)):
-        def context_h(self, params, context):
-            cells = jnp.round(context.obs).astype(jnp.int32)                   # [T+1, 2] (x, y)
-            seen = jnp.zeros((size, size), bool).at[cells[:, 1], cells[:, 0]].set(True)
-            stayed = jnp.all(cells[1:] == cells[:-1], axis=-1)
-            bump = cells[:-1] + jnp.asarray(ACTION_DELTAS)[context.action]
-            bump = jnp.where(stayed[:, None], bump, cells[:-1])                # moved: marks a visited cell
-            seen = seen.at[bump[:, 1], bump[:, 0]].set(True)[1:-1, 1:-1].reshape(-1)
-            return jnp.where(seen, self.env.context_features(context.layout), prior)
-    return Revealed(**{f.name: getattr(agent, f.name) for f in dataclasses.fields(agent)})
-
-
-def rounded(agent):
-    """The same agent, its h = c(mu) rounded to a 0/1 map (the format F trained on with h_train_true)."""
-    class Rounded(type(agent)):
-        def context_h(self, params, context):
-            return jnp.round(jnp.clip(super().context_h(params, context), 0.0, 1.0))
-    return Rounded(**{f.name: getattr(agent, f.name) for f in dataclasses.fields(agent)})
+    seen = revealed(jnp.round(context.obs).astype(jnp.int32), context.action, (size, size))
+    return jnp.where(seen[1:-1, 1:-1].reshape(-1), agent.env.context_features(context.layout),
+                     agent.layout_features.mean(0))
 
 
 def main():
@@ -74,12 +68,12 @@ def main():
     if run.cfg.h_from != "context":
         raise SystemExit(f"{a.run}: h_from={run.cfg.h_from!r}, expected 'context' (F reads a wall map)")
     env = make_env_for(run.cfg, progress=False)
-    agents = {"c(mu) of one episode": make_agent(run.cfg, env)}
-    agents["true wall map"] = told_the_layout(agents["c(mu) of one episode"])
     if any(n <= 0 for n in a.context_lens):
         p.error(f"--context-lens must be positive integers, got {a.context_lens}")
-    agents["c(mu) rounded to 0/1"] = rounded(agents["c(mu) of one episode"])
-    agents["the episode's revealed map"] = revealed_map(agents["c(mu) of one episode"])
+    own = make_agent(run.cfg, env)
+    agents = {"c(mu) of one episode": own, "true wall map": with_context_h(own, true_map),
+              "c(mu) rounded to 0/1": with_context_h(own, rounded),
+              "the episode's revealed map": with_context_h(own, revealed_map)}
     variants = [(name, agent, None) for name, agent in agents.items()]
     for n in a.context_lens:
         variants += [(f"c(mu), {n}-step context", agents["c(mu) of one episode"], n),
