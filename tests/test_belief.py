@@ -9,6 +9,7 @@ from scipy.special import ive
 import zsbfm
 from zsbfm.agents import make_agent
 from zsbfm.agents.base import Context
+from zsbfm.evaluate import context_episode
 from zsbfm.nets.encoder import ContextEncoder
 from zsbfm.ops.vmf import householder_to, sample_vmf, sample_vmf_cosine
 from tests.conftest import jit_optimised
@@ -151,6 +152,60 @@ def test_h_from_context_is_belief_fbs_staged_mean_only(bad):
 def test_h_from_settings_are_checked(fields, message):
     with pytest.raises(ValueError, match=message):
         zsbfm.Config.preset("fourrooms", "bfb", **fields)
+
+
+@pytest.mark.parametrize("fields, message", [
+    (dict(algo="bfb", context_episodes=0), "Config.context_episodes=0"),
+    (dict(algo="bfb", context_episodes=3, episodes_per_layout=2), "Config.context_episodes=3"),
+    (dict(algo="fb", context_episodes=2), "Config.context_episodes=2"),
+])
+def test_context_episodes_is_checked(fields, message):
+    fields = dict(fields)
+    algo = fields.pop("algo")
+    with pytest.raises(ValueError, match=message):
+        zsbfm.Config.preset("fourrooms", algo, **fields)
+
+
+def test_a_multi_episode_context_draws_distinct_episodes_of_one_layout():
+    per, K = 5, 4
+    cfg = zsbfm.Config.preset("fourrooms", "bfb", n_train_layouts=3, episodes_per_layout=per, context_episodes=K)
+    agent = make_agent(cfg, zsbfm.make_env("fourrooms", n_train=3))
+    episode = jnp.arange(3 * per)
+    eps = np.asarray(agent.context_episodes_of(jax.random.PRNGKey(0), episode))
+    assert eps.shape == (3 * per, K)
+    np.testing.assert_array_equal(eps[:, 0], np.arange(3 * per))             # the episode itself first
+    np.testing.assert_array_equal(eps // per, np.repeat(np.arange(3 * per) // per, K).reshape(-1, K))
+    assert all(len(set(row)) == K for row in eps.tolist())                    # without replacement
+    again = np.asarray(agent.context_episodes_of(jax.random.PRNGKey(1), episode))
+    assert (again != eps).any()                                               # the key matters
+
+
+def test_a_k_episode_context_is_the_set_of_its_episodes_transitions():
+    """Context.transitions pools K episodes without a transition across two of them, and the
+    belief agent's h of the K-episode context is the encoder's h of exactly that set."""
+    K, T = 3, 4
+    obs = jnp.arange(K * (T + 1) * 2, dtype=jnp.float32).reshape(K, T + 1, 2)
+    action = jnp.arange(K * T).reshape(K, T) % 4
+    o, a, n = Context(obs=obs, action=action).transitions()
+    assert o.shape == (K * T, 2) and a.shape == (K * T,)
+    np.testing.assert_array_equal(np.asarray(o).reshape(K, T, 2), np.asarray(obs[:, :-1]))
+    np.testing.assert_array_equal(np.asarray(n).reshape(K, T, 2), np.asarray(obs[:, 1:]))
+    single = Context(obs=obs[1], action=action[1]).transitions()
+    np.testing.assert_array_equal(np.asarray(single[1]), np.asarray(action[1]))
+
+    cfg = zsbfm.Config.preset("fourrooms", "bfb", n_train_layouts=2, episodes_per_layout=4, context_episodes=K)
+    env = zsbfm.make_env("fourrooms", n_train=2)
+    agent = make_agent(cfg, env)
+    params = agent.eval_params(agent.init(jax.random.PRNGKey(0)))
+    layout = jax.tree_util.tree_map(lambda x: x[0], env.contexts("train"))
+    context = context_episode(env, jax.random.PRNGKey(2), layout, T, K)
+    assert context.obs.shape == (K, T + 1, env.obs_dim) and context.action.shape == (K, T)
+    assert len({tuple(np.asarray(context.obs[k]).ravel()) for k in range(K)}) == K  # independent episodes
+    h = agent.context_h(params, context)
+    shuffled = Context(obs=context.obs[::-1], action=context.action[::-1], layout=layout)
+    np.testing.assert_allclose(np.asarray(agent.context_h(params, shuffled)), np.asarray(h), atol=1e-5)
+    first = Context(obs=context.obs[0], action=context.action[0], layout=layout)
+    assert np.abs(np.asarray(agent.context_h(params, first)) - np.asarray(h)).max() > 1e-4
 
 
 def test_h_train_true_trains_f_on_each_transitions_own_layout_walls():

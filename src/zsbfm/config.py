@@ -46,6 +46,9 @@ class Config:
     episodes_per_layout: int = 500  # behaviour episodes collected in each train context
     episode_len: int = 100      # must equal the environment's episode length
     context_len: int = 100      # transitions per context window (belief methods)
+    # behaviour episodes of one layout pooled into one context (belief methods): the encoder
+    # reads context_len transitions of each as one set, in training and at test time (1: the paper's)
+    context_episodes: int = 1
     # antwind only: the behaviour data (zsbfm.data.expert), cached under data_dir/antwind/
     data_policy: str = "expert"  # "expert": the noisy wind-aware TD3 expert | "random"
     # env steps of TD3 training for the expert (the preset's is shipped: expert_source): 300k
@@ -301,6 +304,12 @@ class Config:
         if self.context_len > self.episode_len:
             bad("context_len", self.context_len,
                 f"at most the episode length ({self.episode_len}): a context is one episode's window")
+        if not isinstance(self.context_episodes, int) or isinstance(self.context_episodes, bool) \
+                or not 1 <= self.context_episodes <= self.episodes_per_layout:
+            bad("context_episodes", self.context_episodes,
+                f"an integer in 1..episodes_per_layout={self.episodes_per_layout} (episodes of one layout per context)")
+        if self.context_episodes > 1 and self.algo not in BELIEF_ALGOS:
+            bad("context_episodes", self.context_episodes, f"1 for algo={self.algo!r} (only belief methods read a context)")
         if not isinstance(self.data_parallel, int) or isinstance(self.data_parallel, bool) or self.data_parallel <= 0:
             bad("data_parallel", self.data_parallel, "a positive integer (devices per seed's batch)")
         if self.batch_size % self.data_parallel:

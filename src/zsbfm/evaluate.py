@@ -1,7 +1,8 @@
 """Zero-shot evaluation: jitted, vmapped greedy rollouts over contexts x tasks (x seeds).
 
 For every context, one reward-free episode of the behaviour policy is collected first
-(the test-time context for belief agents; context-free agents ignore it). Then, by the
+(the test-time context for belief agents; context-free agents ignore it), or with
+Config.context_episodes = K, K independent ones. Then, by the
 environment's `metric`:
     "success" (gridworlds, pointmass): for every goal, the agent infers z from the goal and
         that episode and acts greedily from the evaluation start; score 1 if the goal is
@@ -21,10 +22,15 @@ from zsbfm.data.collect import behaviour_rollout, rollout
 from zsbfm.envs.base import index_contexts, num_contexts
 
 
-def context_episode(env, key, ctx, length: int) -> Context:
+def context_episode(env, key, ctx, length: int, episodes: int = 1) -> Context:
     """One reward-free behaviour-policy episode of `length` steps in `ctx` (and `ctx` itself,
-    which only the oracle diagnostic reads)."""
-    obs, action, _ = behaviour_rollout(env, key, ctx, length)
+    which only the oracle diagnostic reads); episodes > 1: that many independent episodes,
+    stacked on a leading axis (obs [episodes, length + 1, obs_dim])."""
+    if episodes == 1:
+        obs, action, _ = behaviour_rollout(env, key, ctx, length)
+    else:
+        obs, action, _ = jax.vmap(lambda k: behaviour_rollout(env, k, ctx, length))(
+            jax.random.split(key, episodes))
     return Context(obs=obs, action=action, layout=ctx)
 
 
@@ -53,13 +59,14 @@ def metric_of(env) -> str:
 
 
 def evaluate_params(agent, env, params, key, contexts, goals, length: int, context_len: int,
-                    reward_obs=None):
+                    reward_obs=None, context_episodes: int = 1):
     """Scores of one parameter set (jittable): success bool[n_contexts, n_goals], or for
     metric "return" the returns float32[n_contexts, 1].
 
     contexts: stacked context pytree [n_contexts, ...]; goals: float32[n_contexts, n_goals,
     obs_dim] (success) or None; reward_obs: float32[n, obs_dim] dataset states for reward
-    inference (return).
+    inference (return); context_episodes: behaviour episodes of context_len steps per test-time
+    context (`context_episode`).
     """
     n = num_contexts(contexts)
     if metric_of(env) == "return":
@@ -68,7 +75,7 @@ def evaluate_params(agent, env, params, key, contexts, goals, length: int, conte
 
         def one_return(k, ctx):
             k_ctx, k_roll = jax.random.split(k)
-            context = context_episode(env, k_ctx, ctx, context_len)
+            context = context_episode(env, k_ctx, ctx, context_len, context_episodes)
             return return_rollout(agent, env, params, k_roll, ctx, context, reward_obs, length)[None]
 
         return jax.vmap(one_return)(jax.random.split(key, n), contexts)
@@ -77,7 +84,7 @@ def evaluate_params(agent, env, params, key, contexts, goals, length: int, conte
 
     def one_context(k, ctx, ctx_goals):
         k_ctx, k_roll = jax.random.split(k)
-        context = context_episode(env, k_ctx, ctx, context_len)
+        context = context_episode(env, k_ctx, ctx, context_len, context_episodes)
         keys = jax.random.split(k_roll, ctx_goals.shape[0])
         success, _ = jax.vmap(lambda kk, g: goal_rollout(agent, env, params, kk, ctx, context, g, length))(
             keys, ctx_goals)
@@ -95,7 +102,7 @@ def protocols_of(env) -> tuple[str, ...]:
 
 
 def evaluate_protocol(agent, env, params, key, contexts, protocol: str, length: int,
-                      context_len: int, reward_obs=None):
+                      context_len: int, reward_obs=None, context_episodes: int = 1):
     """Scores of one parameter set under one protocol (jittable): (score float32[n_contexts,
     G], valid bool[n_contexts, G]), the score a success (0/1) or, for "return", the return.
 
@@ -103,13 +110,14 @@ def evaluate_protocol(agent, env, params, key, contexts, protocol: str, length: 
     the context episode and rollout keys are drawn as in `evaluate_params`, so the
     official protocol gives exactly its scores."""
     if protocol == "return":
-        r = evaluate_params(agent, env, params, key, contexts, None, length, context_len, reward_obs)
+        r = evaluate_params(agent, env, params, key, contexts, None, length, context_len, reward_obs,
+                            context_episodes)
         return r.astype(jnp.float32), jnp.ones(r.shape, bool)
     n = num_contexts(contexts)
 
     def one_context(k, ctx):
         k_ctx, k_roll = jax.random.split(k)
-        context = context_episode(env, k_ctx, ctx, context_len)
+        context = context_episode(env, k_ctx, ctx, context_len, context_episodes)
         starts, goals, valid = env.eval_tasks(ctx, protocol, jax.random.fold_in(k, 7))
         keys = jax.random.split(k_roll, goals.shape[0])
         success, _ = jax.vmap(lambda kk, g, st: goal_rollout(agent, env, params, kk, ctx, context, g, length, st))(
@@ -152,7 +160,7 @@ def split_results(success) -> dict:
 
 
 def evaluate(run, contexts=None, goals=None, key=None, split: str = "test", protocol: str | None = None,
-             agent=None, context_len: int | None = None):
+             agent=None, context_len: int | None = None, context_episodes: int | None = None):
     """Evaluate every seed of a trained `Run` zero-shot.
 
     contexts: stacked contexts (default: env.contexts(split)); goals: float32[n_contexts,
@@ -171,6 +179,7 @@ def evaluate(run, contexts=None, goals=None, key=None, split: str = "test", prot
     the same parameters, for a diagnostic (e.g. one whose context_h is told the layout).
     context_len: None for cfg.context_len; or the steps of the test-time context episode (a
     diagnostic: how much context the agent's h needs; the encoder pools any number).
+    context_episodes: None for cfg.context_episodes; or the number of such episodes per context.
     """
     from zsbfm.agents import make_agent
     from zsbfm.data.sources import make_env_for
@@ -185,6 +194,10 @@ def evaluate(run, contexts=None, goals=None, key=None, split: str = "test", prot
         context_len = cfg.context_len
     elif not isinstance(context_len, int) or context_len <= 0:
         raise ValueError(f"context_len={context_len!r} is invalid: expected a positive integer")
+    if context_episodes is None:
+        context_episodes = cfg.context_episodes
+    elif not isinstance(context_episodes, int) or isinstance(context_episodes, bool) or context_episodes <= 0:
+        raise ValueError(f"context_episodes={context_episodes!r} is invalid: expected a positive integer")
     contexts = env.contexts(split) if contexts is None else contexts
     seeds = jax.tree_util.tree_leaves(run.params)[0].shape[0]
     if key is None:
@@ -208,10 +221,10 @@ def evaluate(run, contexts=None, goals=None, key=None, split: str = "test", prot
         if protocol not in protocols_of(env):
             raise ValueError(f"protocol={protocol!r} is invalid for {cfg.env}: expected one of {protocols_of(env)}")
         fn = jax.jit(jax.vmap(lambda p, k, r: evaluate_protocol(agent, env, p, k, contexts, protocol,
-                                                                 cfg.eval_episode_len, context_len, r),
+                                                                 cfg.eval_episode_len, context_len, r, context_episodes),
                               in_axes=(0, 0, 0 if reward_obs is not None else None)))
         return fn(run.params, k_split, reward_obs)
     fn = jax.jit(jax.vmap(lambda p, k, r: evaluate_params(agent, env, p, k, contexts, goals,
-                                                          cfg.eval_episode_len, context_len, r),
+                                                          cfg.eval_episode_len, context_len, r, context_episodes),
                           in_axes=(0, 0, 0 if reward_obs is not None else None)))
     return fn(run.params, k_split, reward_obs)

@@ -176,7 +176,7 @@ def value_map(agent, env, params, ctx, goal, key):
     size = env.size
     ys, xs = jnp.mgrid[0:size, 0:size]
     cells = jnp.stack([xs.reshape(-1), ys.reshape(-1)], -1).astype(jnp.float32)
-    context = context_episode(env, key, ctx, agent.cfg.context_len)
+    context = context_episode(env, key, ctx, agent.cfg.context_len, agent.cfg.context_episodes)
     task = agent.goal_task(params, goal, context)
     q = agent.q_values(params, cells, jax.tree_util.tree_map(
         lambda x: jnp.broadcast_to(x, (cells.shape[0],) + x.shape), task))

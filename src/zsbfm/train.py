@@ -143,7 +143,8 @@ def make_train(cfg: Config, progress: bool = False) -> Trainer:
         params = a.eval_params(carry.agent_state)
         k_train, k_test, reward_obs = split_keys(key, dataset)
         run = lambda k, ctx, goals: evaluate_params(a, env, params, k, ctx, goals,
-                                                    cfg.eval_episode_len, cfg.context_len, reward_obs)
+                                                    cfg.eval_episode_len, cfg.context_len, reward_obs,
+                                                    cfg.context_episodes)
         return {"train": run(k_train, train_ctx, train_goals), "test": run(k_test, test_ctx, test_goals)}
 
     def evaluate_protocols(carry, dataset, key, hp=None, skip_official=False):
@@ -158,7 +159,7 @@ def make_train(cfg: Config, progress: bool = False) -> Trainer:
         for split, k, ctx in (("train", k_train, train_ctx), ("test", k_test, test_ctx)):
             for protocol in protocols[1:] if skip_official else protocols:
                 score, valid = evaluate_protocol(a, env, params, k, ctx, protocol, cfg.eval_episode_len,
-                                                 cfg.context_len, reward_obs)
+                                                 cfg.context_len, reward_obs, cfg.context_episodes)
                 out[f"{split}/{protocol}"] = protocol_score(score, valid)
         return out
 

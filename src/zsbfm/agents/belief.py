@@ -154,8 +154,8 @@ class BeliefFBAgent(FBAgent):
         return self.standardize(enc, mu)
 
     def context_h(self, params: FBParams, context: Context) -> Array:
-        """h of one reward-free episode (h_of_mu of its mu): [h_dim]."""
-        mu, _ = self.encode(params.enc, context.obs[:-1], context.action, context.obs[1:])
+        """h of the reward-free context (h_of_mu of the mu of all its transitions): [h_dim]."""
+        mu, _ = self.encode(params.enc, *context.transitions())
         return self.h_of_mu(params.enc, mu)
 
     # -- init ---------------------------------------------------------------------------------
@@ -236,11 +236,37 @@ class BeliefFBAgent(FBAgent):
         log_pos = jax.nn.logsumexp(jnp.where(positive, logits, -jnp.inf), axis=1)
         return jnp.mean(jax.nn.logsumexp(logits, axis=1) - log_pos)
 
+    def context_episodes_of(self, key, episode: Array) -> Array:
+        """The episodes of each context: `episode` [n] itself, then context_episodes - 1 other
+        episodes of its layout drawn without replacement: int[n, K]. Episodes are
+        context-major (episodes_per_layout per layout)."""
+        K, per = self.cfg.context_episodes, self.cfg.episodes_per_layout
+        if K == 1:
+            return episode[:, None]
+        draw = lambda k: 1 + jax.random.permutation(k, per - 1)[:K - 1]          # offsets in 1..per-1
+        shift = jax.vmap(draw)(jax.random.split(key, episode.shape[0]))      # [n, K-1]
+        first = episode - episode % per
+        others = first[:, None] + (episode[:, None] % per + shift) % per
+        return jnp.concatenate([episode[:, None], others], -1)
+
+    def sample_contexts(self, key, dataset, episode: Array):
+        """One context per given episode [n]: a context_len window of each of its
+        `context_episodes_of` episodes, pooled into one set: (obs, action, next_obs), each
+        [n, K * context_len, ...] (K = 1: one window of the episode itself)."""
+        if self.cfg.context_episodes == 1:
+            return tuple(sample_windows(key, dataset, episode, self.cfg.context_len))
+        k_ep, k_w = jax.random.split(key)
+        eps = self.context_episodes_of(k_ep, episode)                          # [n, K]
+        n, K = eps.shape
+        return tuple(x.reshape((n, K * x.shape[1]) + x.shape[2:])
+                     for x in sample_windows(k_w, dataset, eps.reshape(-1), self.cfg.context_len))
+
     def sample_episode_windows(self, key, dataset, n):
-        """n random episodes and one context window of each: (episode [n], obs, action, next_obs)."""
+        """n random episodes and one context of each (`sample_contexts`): (episode [n], obs,
+        action, next_obs)."""
         k_e, k_w = jax.random.split(key)
         ep = jax.random.randint(k_e, (n,), 0, dataset.num_episodes)
-        return (ep,) + sample_windows(k_w, dataset, ep, self.cfg.context_len)
+        return (ep,) + self.sample_contexts(k_w, dataset, ep)
 
     def pretrain_step(self, state: BeliefState, dataset, key) -> tuple[BeliefState, dict]:
         """One encoder step on enc_batch windows; F and B untouched.
@@ -256,7 +282,7 @@ class BeliefFBAgent(FBAgent):
         if self.cfg.enc_target == "context":
             per = self.cfg.episodes_per_layout  # episodes are context-major
             other = dataset.context_id[ep] * per + jax.random.randint(k_other, ep.shape, 0, per)
-            target = tuple(sample_windows(k_tw, dataset, other, self.cfg.context_len))
+            target = self.sample_contexts(k_tw, dataset, other)
         else:
             target = window
         grads, (metrics, _) = jax.grad(self.encoder_loss, has_aux=True)(
@@ -270,19 +296,41 @@ class BeliefFBAgent(FBAgent):
     def build_h_table(self, state: BeliefState, dataset, key) -> BeliefState:
         """q(h | window) of `num_windows` context windows of every episode, with the frozen
         encoder: h_table = standardised mu, h_sigma_table = sigma / std (Config.h_standardize;
-        else mean 0 and std 1: the encoder's own scale)."""
-        L, T, W = self.cfg.context_len, dataset.episode_len, self.num_windows
-        starts = jax.random.randint(key, (dataset.num_episodes, W), 0, T - L + 1)
-        if W == 1 and L == T:
-            starts = jnp.zeros_like(starts)
+        else mean 0 and std 1: the encoder's own scale). With context_episodes K > 1 each
+        window pools a window of the episode and of K - 1 others of its layout
+        (`context_episodes_of`). With h_train_true F never reads the table: it stays empty."""
+        if self.cfg.h_train_true:
+            return state
+        L, T, W, K = self.cfg.context_len, dataset.episode_len, self.num_windows, self.cfg.context_episodes
+        E = dataset.num_episodes
+        if K == 1:
+            starts = jax.random.randint(key, (E, W), 0, T - L + 1)
+            if W == 1 and L == T:
+                starts = jnp.zeros_like(starts)
 
-        def one_episode(args):
-            obs, action, st = args
-            idx = st[:, None] + jnp.arange(L)[None]                       # [W, L]
-            return self.encode(state.params.enc, obs[idx], action[idx], obs[idx + 1])  # 2 x [W, mu_dim]
+            def one_episode(args):
+                obs, action, st = args
+                idx = st[:, None] + jnp.arange(L)[None]                       # [W, L]
+                return self.encode(state.params.enc, obs[idx], action[idx], obs[idx + 1])  # 2 x [W, mu_dim]
 
-        table, log_sigma = jax.lax.stop_gradient(
-            jax.lax.map(one_episode, (dataset.obs, dataset.action, starts), batch_size=256))
+            table, log_sigma = jax.lax.stop_gradient(
+                jax.lax.map(one_episode, (dataset.obs, dataset.action, starts), batch_size=256))
+        else:
+            k_st, k_ep = jax.random.split(key)
+            eps = self.context_episodes_of(k_ep, jnp.repeat(jnp.arange(E), W)).reshape(E, W, K)
+            starts = jax.random.randint(k_st, (E, W, K), 0, T - L + 1)
+
+            def one_context_set(args):
+                ep, st = args                                                 # [W, K] each
+                idx = st[..., None] + jnp.arange(L)                           # [W, K, L]
+                e = ep[..., None]
+                flat = lambda x: x.reshape((W, K * L) + x.shape[3:])
+                return self.encode(state.params.enc, flat(dataset.obs[e, idx]),
+                                   flat(dataset.action[e, idx]), flat(dataset.obs[e, idx + 1]))
+
+            # attention is quadratic in the K * L tokens: fewer episodes per map step
+            table, log_sigma = jax.lax.stop_gradient(
+                jax.lax.map(one_context_set, (eps, starts), batch_size=max(1, 256 // K ** 2)))
         if self.cfg.h_from == "context":  # h = c(mu); no sigma on its scale (h_noise is off)
             h = self.h_of_mu(state.params.enc, table)
             return state.replace(h_table=h, h_sigma_table=jnp.zeros_like(h))
