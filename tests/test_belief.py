@@ -180,19 +180,11 @@ def test_a_multi_episode_context_draws_distinct_episodes_of_one_layout():
     assert (again != eps).any()                                               # the key matters
 
 
-def test_a_k_episode_context_is_the_set_of_its_episodes_transitions():
-    """Context.transitions pools K episodes without a transition across two of them, and the
-    belief agent's h of the K-episode context is the encoder's h of exactly that set."""
-    K, T = 3, 4
-    obs = jnp.arange(K * (T + 1) * 2, dtype=jnp.float32).reshape(K, T + 1, 2)
-    action = jnp.arange(K * T).reshape(K, T) % 4
-    o, a, n = Context(obs=obs, action=action).transitions()
-    assert o.shape == (K * T, 2) and a.shape == (K * T,)
-    np.testing.assert_array_equal(np.asarray(o).reshape(K, T, 2), np.asarray(obs[:, :-1]))
-    np.testing.assert_array_equal(np.asarray(n).reshape(K, T, 2), np.asarray(obs[:, 1:]))
-    single = Context(obs=obs[1], action=action[1]).transitions()
-    np.testing.assert_array_equal(np.asarray(single[1]), np.asarray(action[1]))
-
+def test_a_k_episode_context_is_max_pooled_over_its_episodes():
+    """h of a K-episode context: invariant to the order of the episodes and of the
+    transitions within one, unchanged when an episode is repeated (a max, not a mean), and
+    not that of its first episode alone; the test-time context holds K independent episodes."""
+    K, T = 3, 6
     cfg = zsbfm.Config.preset("fourrooms", "bfb", n_train_layouts=2, episodes_per_layout=4, context_episodes=K)
     env = zsbfm.make_env("fourrooms", n_train=2)
     agent = make_agent(cfg, env)
@@ -201,11 +193,20 @@ def test_a_k_episode_context_is_the_set_of_its_episodes_transitions():
     context = context_episode(env, jax.random.PRNGKey(2), layout, T, K)
     assert context.obs.shape == (K, T + 1, env.obs_dim) and context.action.shape == (K, T)
     assert len({tuple(np.asarray(context.obs[k]).ravel()) for k in range(K)}) == K  # independent episodes
-    h = agent.context_h(params, context)
-    shuffled = Context(obs=context.obs[::-1], action=context.action[::-1], layout=layout)
-    np.testing.assert_allclose(np.asarray(agent.context_h(params, shuffled)), np.asarray(h), atol=1e-5)
-    first = Context(obs=context.obs[0], action=context.action[0], layout=layout)
-    assert np.abs(np.asarray(agent.context_h(params, first)) - np.asarray(h)).max() > 1e-4
+    h = lambda obs, action: np.asarray(agent.context_h(params, Context(obs=obs, action=action, layout=layout)))
+    h0 = h(context.obs, context.action)
+    np.testing.assert_allclose(h(context.obs[::-1], context.action[::-1]), h0, atol=1e-5)
+    # transitions (s, a, s') permuted within episode 1: the same set of transitions
+    perm = jax.random.permutation(jax.random.PRNGKey(3), T)
+    tok = agent.tokens(context.obs[:, :-1], context.action, context.obs[:, 1:])
+    mu = lambda t: np.asarray(agent.encoder_net.apply(params.enc["encoder"], t, jnp.ones(t.shape[:-1], bool), True)[0])
+    np.testing.assert_allclose(mu(tok.at[1].set(tok[1, perm])), mu(tok), atol=1e-5)
+    # repeating episode 0 in place of episode 2 adds nothing to what episodes 0 and 1 show
+    two = mu(tok[:2])
+    np.testing.assert_allclose(mu(tok.at[2].set(tok[0])), two, atol=1e-5)
+    assert np.abs(mu(tok) - two).max() > 1e-4 and np.abs(h(context.obs[:1], context.action[:1]) - h0).max() > 1e-4
+    # a one-episode context with the K axis is the paper's one-episode h
+    np.testing.assert_allclose(h(context.obs[:1], context.action[:1]), h(context.obs[0], context.action[0]), atol=1e-5)
 
 
 def test_h_train_true_trains_f_on_each_transitions_own_layout_walls():

@@ -1,7 +1,7 @@
 """What one test-time context episode can tell about a gridworld layout, for any encoder.
 
     python experiments/fb_diagnostics/context_coverage.py [--env fourrooms doors] [--episodes 20]
-        [--json results/context_coverage.json]
+        [--context-episodes 1 2 4 8] [--json results/context_coverage.json]
 
 At test time a belief agent infers h from one reward-free episode of the behaviour policy
 (`evaluate.context_episode`: the same policy and length as the training episodes). The
@@ -12,6 +12,8 @@ held-out layouts (and of the train layouts, the same numbers up to sampling):
 - the varying cells (walled in some layout of the family, free in another) it reveals.
 What an episode does not reveal, no encoder can read from it: it is left to the prior over
 the family (and, for a train layout, to recognising it from the part seen).
+--context-episodes: the same for contexts of K episodes of a layout (Config.context_episodes),
+what their union reveals (the episodes of a layout are split into groups of K).
 """
 from __future__ import annotations
 
@@ -46,7 +48,16 @@ def revealed(cells, actions, shape) -> jax.Array:
     return seen.at[bumped[:, 1], bumped[:, 0]].set(True)
 
 
-def coverage(env_name: str, episodes: int, seed: int) -> dict:
+def door_stats(seen_all, walls, cid) -> dict:
+    """Door coverage of contexts: seen_all bool[n, H, W] (what each context revealed), walls
+    [layouts, H, W], cid int[n] (each context's layout)."""
+    door_frac = np.asarray([np.mean([seen[c] for c in doors(walls[cid[e]])]) for e, seen in enumerate(seen_all)])
+    return {"door_fraction_passed": float(door_frac.mean()),
+            "episodes_passing_all_doors": float(np.mean(door_frac == 1)),
+            "episodes_passing_no_door": float(np.mean(door_frac == 0))}
+
+
+def coverage(env_name: str, episodes: int, seed: int, context_episodes=()) -> dict:
     cfg = Config.preset(env_name, "bfb", "cpu")
     env = zsbfm.make_env(env_name, n_train=cfg.n_train_layouts)
     walls = {s: np.asarray(env.contexts(s).walls) for s in ("train", "test")}
@@ -59,23 +70,24 @@ def coverage(env_name: str, episodes: int, seed: int) -> dict:
         cells = np.round(np.asarray(ds.obs)).astype(int)
         acts, cid = np.asarray(ds.action), np.asarray(ds.context_id)
         seen_all = np.asarray(jax.vmap(lambda c, a_: revealed(c, a_, varies.shape))(cells, acts))
-        door_frac, vary_frac = [], []
-        for e, seen in enumerate(seen_all):
-            d = doors(w[cid[e]])
-            door_frac.append(np.mean([seen[c] for c in d]))
-            vary_frac.append(seen[varies].mean())
-        door_frac = np.asarray(door_frac)
         out[split] = {"doors_per_layout": float(np.mean([len(doors(x)) for x in w])),
-                      "door_fraction_passed": float(door_frac.mean()),
-                      "episodes_passing_all_doors": float(np.mean(door_frac == 1)),
-                      "episodes_passing_no_door": float(np.mean(door_frac == 0)),
-                      "varying_cells_revealed": float(np.mean(vary_frac))}
+                      **door_stats(seen_all, w, cid),
+                      "varying_cells_revealed": float(np.mean([s[varies].mean() for s in seen_all]))}
         r = out[split]
         print(f"{env_name} {split} layouts ({len(cells)} episodes of {env.episode_len} steps): "
               f"{r['doors_per_layout']:.0f} doors; an episode passes {r['door_fraction_passed']:.2f} of them, "
               f"all of them in {r['episodes_passing_all_doors']:.2f} of episodes, none in "
               f"{r['episodes_passing_no_door']:.2f}; it reveals {r['varying_cells_revealed']:.2f} of the "
               f"{out['varying_cells']} cells that differ between layouts")
+        for k in context_episodes:  # episodes are context-major: groups of k consecutive ones
+            groups = episodes // k
+            per_layout = seen_all.reshape(len(w), episodes, *seen_all.shape[1:])[:, :groups * k]
+            union = per_layout.reshape(len(w) * groups, k, *seen_all.shape[1:]).any(1)
+            r.setdefault("by_context_episodes", {})[str(k)] = dict(
+                door_stats(union, w, np.repeat(np.arange(len(w)), groups)), contexts=len(w) * groups)
+            q = r["by_context_episodes"][str(k)]
+            print(f"  contexts of {k:2d} episodes: pass {q['door_fraction_passed']:.2f} of the doors, all of "
+                  f"them in {q['episodes_passing_all_doors']:.2f}, none in {q['episodes_passing_no_door']:.2f}")
     return out
 
 
@@ -84,11 +96,15 @@ def main():
     p.add_argument("--env", nargs="+", default=["fourrooms", "doors"], choices=["fourrooms", "doors"])
     p.add_argument("--episodes", type=int, default=20, help="fresh episodes per layout")
     p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--context-episodes", nargs="*", type=int, default=[],
+                   help="also the door coverage of contexts of this many episodes")
     p.add_argument("--json", default="", help="write the figures to this JSON file")
     a = p.parse_args()
     if a.episodes <= 0:
         p.error(f"--episodes must be a positive integer, got {a.episodes}")
-    res = [coverage(e, a.episodes, a.seed) for e in a.env]
+    if any(not 1 <= k <= a.episodes for k in a.context_episodes):
+        p.error(f"--context-episodes must be in 1..--episodes={a.episodes}, got {a.context_episodes}")
+    res = [coverage(e, a.episodes, a.seed, a.context_episodes) for e in a.env]
     if a.json:
         with open(a.json, "w") as f:
             json.dump(res, f, indent=1)

@@ -2,7 +2,7 @@
 context episode (what it is evaluated with) against the same F given the layout's true map.
 
     python experiments/fb_diagnostics/h_swap.py runs/<run> [--context-lens 200 400 800]
-        [--json results/fourrooms_h_swap.jsonl]
+        [--context-episodes 1 2 4 8 16] [--json results/fourrooms_h_swap.jsonl]
 
 Evaluates the saved run on the paper and dense protocols, train and held-out layouts, with
 the run's own evaluation keys (`zsbfm.evaluate`), twice: h = c(mu) (the run's own numbers)
@@ -10,6 +10,8 @@ and h = env.context_features(layout) (the walls oracle's input). The gap is what
 episode's partial view of the layout costs F (experiments/fb_diagnostics/context_coverage.py).
 --context-lens: c(mu) also of longer context episodes of the same behaviour policy (the
 encoder pools any number of transitions), to see how much context closes the gap.
+--context-episodes: c(mu) (and the revealed map) of contexts of K independent episodes
+(Config.context_episodes; the run's own K is what it was trained and evaluated with).
 """
 from __future__ import annotations
 
@@ -17,6 +19,7 @@ import argparse
 import dataclasses
 import json
 
+import jax
 import jax.numpy as jnp
 import numpy as np
 
@@ -51,7 +54,11 @@ def revealed_map(agent, params, context):
     entered or bumped into (context_coverage.revealed), the train layouts' mean map elsewhere
     (the best an encoder of that episode could give cell by cell)."""
     size = agent.env.size
-    seen = revealed(jnp.round(context.obs).astype(jnp.int32), context.action, (size, size))
+    cells = jnp.round(context.obs).astype(jnp.int32)
+    if cells.ndim == 3:  # K episodes: the union of what each revealed
+        seen = jax.vmap(lambda c, a: revealed(c, a, (size, size)))(cells, context.action).any(0)
+    else:
+        seen = revealed(cells, context.action, (size, size))
     return jnp.where(seen[1:-1, 1:-1].reshape(-1), agent.env.context_features(context.layout),
                      agent.layout_features.mean(0))
 
@@ -62,31 +69,43 @@ def main():
     p.add_argument("--protocols", nargs="+", default=["paper", "dense"])
     p.add_argument("--context-lens", nargs="*", type=int, default=[],
                    help="also evaluate h = c(mu) of context episodes of these lengths")
+    p.add_argument("--context-episodes", nargs="*", type=int, default=[],
+                   help="also evaluate with contexts of this many episodes (of the run's context_len)")
     p.add_argument("--json", default="")
     a = p.parse_args()
     run = zsbfm.load(a.run)
     if run.cfg.h_from != "context":
         raise SystemExit(f"{a.run}: h_from={run.cfg.h_from!r}, expected 'context' (F reads a wall map)")
     env = make_env_for(run.cfg, progress=False)
-    if any(n <= 0 for n in a.context_lens):
-        p.error(f"--context-lens must be positive integers, got {a.context_lens}")
+    if any(n <= 0 for n in a.context_lens + a.context_episodes):
+        p.error(f"--context-lens and --context-episodes must be positive integers, got "
+                f"{a.context_lens}, {a.context_episodes}")
     own = make_agent(run.cfg, env)
     agents = {"c(mu) of one episode": own, "true wall map": with_context_h(own, true_map),
               "c(mu) rounded to 0/1": with_context_h(own, rounded),
               "the episode's revealed map": with_context_h(own, revealed_map)}
-    variants = [(name, agent, None) for name, agent in agents.items()]
+    K = run.cfg.context_episodes
+    if K > 1:  # the run's own context is K episodes
+        agents = {name.replace("one episode", f"{K} episodes").replace("the episode's", f"{K} episodes'"): agent
+                  for name, agent in agents.items()}
+    own_name, rounded_name, revealed_name = (name for name in agents if name != "true wall map")
+    variants = [(name, agent, None, None) for name, agent in agents.items()]
     for n in a.context_lens:
-        variants += [(f"c(mu), {n}-step context", agents["c(mu) of one episode"], n),
-                     (f"c(mu) rounded, {n}-step context", agents["c(mu) rounded to 0/1"], n),
-                     (f"revealed map, {n}-step context", agents["the episode's revealed map"], n)]
+        variants += [(f"c(mu), {n}-step context", agents[own_name], n, None),
+                     (f"c(mu) rounded, {n}-step context", agents[rounded_name], n, None),
+                     (f"revealed map, {n}-step context", agents[revealed_name], n, None)]
+    for k in a.context_episodes:
+        variants += [(f"c(mu), {k}-episode context", agents[own_name], None, k),
+                     (f"revealed map, {k}-episode context", agents[revealed_name], None, k)]
     out = {"run": a.run}
-    for name, agent, n in variants:
+    for name, agent, n, k in variants:
         for split in ("train", "test"):
             for protocol in a.protocols:
-                score, valid = zsbfm.evaluate(run, split=split, protocol=protocol, agent=agent, context_len=n)
+                score, valid = zsbfm.evaluate(run, split=split, protocol=protocol, agent=agent, context_len=n,
+                                              context_episodes=k)
                 v = float(np.mean(protocol_score(np.asarray(score), np.asarray(valid))))
                 out[f"{name}/{split}/{protocol}"] = v
-                print(f"h = {name:26s} {split:5s} {protocol:6s} {v:.2f}", flush=True)
+                print(f"h = {name:30s} {split:5s} {protocol:6s} {v:.2f}", flush=True)
     if a.json:
         with open(a.json, "a") as f:
             f.write(json.dumps(out) + "\n")

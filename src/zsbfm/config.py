@@ -46,8 +46,8 @@ class Config:
     episodes_per_layout: int = 500  # behaviour episodes collected in each train context
     episode_len: int = 100      # must equal the environment's episode length
     context_len: int = 100      # transitions per context window (belief methods)
-    # behaviour episodes of one layout pooled into one context (belief methods): the encoder
-    # reads context_len transitions of each as one set, in training and at test time (1: the paper's)
+    # behaviour episodes of one layout per context (belief methods), in training and at test time:
+    # the encoder reads context_len transitions of each, max-pooled over episodes (1: the paper's)
     context_episodes: int = 1
     # antwind only: the behaviour data (zsbfm.data.expert), cached under data_dir/antwind/
     data_policy: str = "expert"  # "expert": the noisy wind-aware TD3 expert | "random"

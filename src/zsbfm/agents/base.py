@@ -45,20 +45,12 @@ class Task:
 @struct.dataclass
 class Context:
     """The reward-free episode(s) used to infer the dynamics context: one episode, or with
-    Config.context_episodes = K > 1, K episodes of one layout stacked on a leading axis."""
+    Config.context_episodes = K > 1, K episodes of one layout stacked on a leading axis
+    (no transition spans two of them)."""
 
     obs: jax.Array     # [T+1, obs_dim] or [K, T+1, obs_dim]
     action: jax.Array  # [T] or [T, action_dim] (with a leading K axis as obs)
     layout: Any = None  # the environment context itself; only the oracle agent may read it
-
-    def transitions(self) -> tuple[jax.Array, jax.Array, jax.Array]:
-        """Every transition of the context as one set: (obs [N, obs_dim], action [N, ...],
-        next_obs [N, obs_dim]), N = K * T; no transition spans two episodes."""
-        obs, nxt = self.obs[..., :-1, :], self.obs[..., 1:, :]
-        lead = obs.ndim - 2  # 0, or 1 with the K axis
-        n = obs.shape[-2] * (obs.shape[0] if lead else 1)
-        action = self.action.reshape((n,) + self.action.shape[1 + lead:])
-        return obs.reshape(n, -1), action, nxt.reshape(n, -1)
 
 
 class Agent(Protocol):

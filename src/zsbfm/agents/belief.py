@@ -131,11 +131,12 @@ class BeliefFBAgent(FBAgent):
             parts.append(jax.nn.one_hot(self.env.cell_index(obs), self.env.n_cells))
         return jnp.concatenate(parts, -1)
 
-    def encode(self, enc_params, obs, action, next_obs, mask=None):
-        """q(h | transitions): (mu, log_sigma), each [..., mu_dim]. obs [..., N, obs_dim]."""
+    def encode(self, enc_params, obs, action, next_obs, mask=None, episodes: bool = False):
+        """q(h | transitions): (mu, log_sigma), each [..., mu_dim]. obs [..., N, obs_dim];
+        with episodes, [..., K, N, obs_dim]: K episodes, combined by the encoder's max."""
         tok = self.tokens(obs, action, next_obs)
         mask = jnp.ones(tok.shape[:-1], bool) if mask is None else mask
-        return self.encoder_net.apply(enc_params["encoder"], tok, mask)
+        return self.encoder_net.apply(enc_params["encoder"], tok, mask, episodes)
 
     def standardize(self, enc, mu: Array) -> Array:
         """h = (mu - mean) / std with the dataset statistics of mu frozen at the h-table build.
@@ -154,8 +155,11 @@ class BeliefFBAgent(FBAgent):
         return self.standardize(enc, mu)
 
     def context_h(self, params: FBParams, context: Context) -> Array:
-        """h of the reward-free context (h_of_mu of the mu of all its transitions): [h_dim]."""
-        mu, _ = self.encode(params.enc, *context.transitions())
+        """h of the reward-free context (h_of_mu of its mu): [h_dim]. context.obs [T+1, d]
+        (one episode) or [K, T+1, d] (K episodes)."""
+        obs = context.obs
+        mu, _ = self.encode(params.enc, obs[..., :-1, :], context.action, obs[..., 1:, :],
+                            episodes=obs.ndim == 3)
         return self.h_of_mu(params.enc, mu)
 
     # -- init ---------------------------------------------------------------------------------
@@ -199,15 +203,17 @@ class BeliefFBAgent(FBAgent):
         With h_from="context", plus enc_context_coef * mean_{i,j} (c(mu_i) - k(context_i))_j^2,
         the head's regression on the window's layout features (module docstring).
         """
-        mu, log_sigma = self.encode(enc, *window)
+        episodes = self.cfg.context_episodes > 1  # windows [n, K, L, ...]: g predicts all K * L
+        mu, log_sigma = self.encode(enc, *window, episodes=episodes)
         h = mu + jnp.exp(log_sigma) * jax.random.normal(key, mu.shape)
-        mse = self.predictor_mse(enc, h, *target)
+        flat = (lambda x: x.reshape((x.shape[0], -1) + x.shape[3:])) if episodes else (lambda x: x)
+        mse = self.predictor_mse(enc, h, *map(flat, target))
         kl = jnp.mean(0.5 * jnp.sum(mu**2 + jnp.exp(2 * log_sigma) - 1.0 - 2.0 * log_sigma, -1))
         loss = mse + self.cfg.enc_beta * kl
         metrics = {"enc_mse": mse, "enc_kl": kl, "h_norm": jnp.mean(jnp.linalg.norm(mu, axis=-1))}
         if self.cfg.enc_contrast > 0:
             # target is window (enc_target="episode", joint mode): its mu is already here
-            mu_target = mu if target is window else self.encode(enc, *target)[0]
+            mu_target = mu if target is window else self.encode(enc, *target, episodes=episodes)[0]
             nce = self.contrastive_loss(mu, mu_target, context)
             loss = loss + self.cfg.enc_contrast * nce
             metrics["enc_nce"] = nce
@@ -250,15 +256,14 @@ class BeliefFBAgent(FBAgent):
         return jnp.concatenate([episode[:, None], others], -1)
 
     def sample_contexts(self, key, dataset, episode: Array):
-        """One context per given episode [n]: a context_len window of each of its
-        `context_episodes_of` episodes, pooled into one set: (obs, action, next_obs), each
-        [n, K * context_len, ...] (K = 1: one window of the episode itself)."""
+        """One context per given episode [n]: a context_len window of the episode itself,
+        (obs, action, next_obs) each [n, context_len, ...]; with context_episodes K > 1, one
+        of each of its `context_episodes_of` episodes, each [n, K, context_len, ...]."""
         if self.cfg.context_episodes == 1:
             return tuple(sample_windows(key, dataset, episode, self.cfg.context_len))
         k_ep, k_w = jax.random.split(key)
         eps = self.context_episodes_of(k_ep, episode)                          # [n, K]
-        n, K = eps.shape
-        return tuple(x.reshape((n, K * x.shape[1]) + x.shape[2:])
+        return tuple(x.reshape(eps.shape + x.shape[1:])
                      for x in sample_windows(k_w, dataset, eps.reshape(-1), self.cfg.context_len))
 
     def sample_episode_windows(self, key, dataset, n):
@@ -324,13 +329,11 @@ class BeliefFBAgent(FBAgent):
                 ep, st = args                                                 # [W, K] each
                 idx = st[..., None] + jnp.arange(L)                           # [W, K, L]
                 e = ep[..., None]
-                flat = lambda x: x.reshape((W, K * L) + x.shape[3:])
-                return self.encode(state.params.enc, flat(dataset.obs[e, idx]),
-                                   flat(dataset.action[e, idx]), flat(dataset.obs[e, idx + 1]))
+                return self.encode(state.params.enc, dataset.obs[e, idx], dataset.action[e, idx],
+                                   dataset.obs[e, idx + 1], episodes=True)
 
-            # attention is quadratic in the K * L tokens: fewer episodes per map step
             table, log_sigma = jax.lax.stop_gradient(
-                jax.lax.map(one_context_set, (eps, starts), batch_size=max(1, 256 // K ** 2)))
+                jax.lax.map(one_context_set, (eps, starts), batch_size=max(1, 256 // K)))
         if self.cfg.h_from == "context":  # h = c(mu); no sigma on its scale (h_noise is off)
             h = self.h_of_mu(state.params.enc, table)
             return state.replace(h_table=h, h_sigma_table=jnp.zeros_like(h))

@@ -2,7 +2,10 @@
 
 f_dyn reads a *set* of transitions of one episode, one token per transition, with no
 positional encoding, and mean-pools over the unmasked tokens: the output is invariant to
-the order of the transitions and unaffected by padding. It returns a diagonal Gaussian
+the order of the transitions and unaffected by padding. A context of several episodes
+(Config.context_episodes) is encoded episode by episode (attention within each) and the
+pooled features are combined by an elementwise max over episodes: a feature that any
+episode shows (a door it passed), the context shows; invariant to the episodes' order. It returns a diagonal Gaussian
 q(h | episode) = N(mu, diag(exp(log_sigma))^2). Everything runs in float32.
 
 g(s_t, a_t, h) regresses s_{t+1}: predicting the next state needs the layout, so h must
@@ -39,7 +42,9 @@ class EncoderBlock(nn.Module):
 
 
 class ContextEncoder(nn.Module):
-    """f_dyn(tokens [..., N, in], mask bool[..., N]) -> (mu, log_sigma), each [..., h_dim]."""
+    """f_dyn(tokens [..., N, in], mask bool[..., N]) -> (mu, log_sigma), each [..., h_dim].
+    With episode_axis: tokens [..., K, N, in], mask [..., K, N] (K episodes; an episode with
+    no unmasked token is left out of the max)."""
 
     h_dim: int
     embed: int = 64
@@ -48,13 +53,15 @@ class ContextEncoder(nn.Module):
     mlp: int = 128
 
     @nn.compact
-    def __call__(self, tokens, mask):
+    def __call__(self, tokens, mask, episode_axis: bool = False):
         x = Dense(self.embed)(tokens.astype(jnp.float32))
         for _ in range(self.layers):
             x = EncoderBlock(self.embed, self.heads, self.mlp)(x, mask)
         x = nn.LayerNorm()(x)
         w = mask.astype(jnp.float32)[..., None]
         pooled = jnp.sum(x * w, axis=-2) / jnp.maximum(jnp.sum(w, axis=-2), 1.0)
+        if episode_axis:  # [..., K, embed] -> [..., embed]
+            pooled = jnp.max(jnp.where(jnp.any(mask, -1, keepdims=True), pooled, -jnp.inf), axis=-2)
         mu = Dense(self.h_dim, name="mu")(pooled)
         log_sigma = jnp.clip(Dense(self.h_dim, name="log_sigma")(pooled), -6.0, 2.0)
         return mu, log_sigma
