@@ -359,3 +359,35 @@ def test_rfb_state_half_of_z_comes_from_the_configured_states(source):
         assert in_episode == 1.0
     else:
         assert in_episode < 0.6, in_episode  # measured 0.34
+
+
+@pytest.mark.slow  # ~1 min: three compiles
+def test_a_k_episode_h_table_holds_each_episode_pooled_with_another_of_its_layout():
+    """context_episodes=2: after the encoder phase the h table of episode e is the standardised
+    mu of the context {e, p} for an episode p != e of e's layout (every candidate p is tried)."""
+    from zsbfm.data import collect
+
+    per = 4
+    cfg = zsbfm.Config.preset("fourrooms", "bfb", n_train_layouts=2, episodes_per_layout=per, d=8,
+                              f_pre_hidden=(8,), f_pre_out=8, f_hidden=(8,), b_hidden=(8,), batch_size=8,
+                              enc_batch=2, enc_embed=8, enc_mlp=8, pred_hidden=(8,),
+                              enc_steps=1000, steps=2000, context_episodes=2)
+    env = zsbfm.make_env("fourrooms", n_train=2)
+    agent = make_agent(cfg, env)
+    ds = jax.jit(lambda k: collect(env, k, env.contexts("train"), per))(jax.random.PRNGKey(0))
+    update = jax.jit(agent.update)
+    s1, m1 = update(jax.jit(agent.init)(jax.random.PRNGKey(0)), ds, jax.random.PRNGKey(1), jnp.int32(3))
+    assert np.isfinite(m1["enc_mse"]) and np.isfinite(m1["enc_nce"])
+    s2, _ = update(s1, ds, jax.random.PRNGKey(2), jnp.int32(1000))            # builds the table
+    table = np.asarray(s2.h_table[:, 0])
+    pair_h = jax.jit(lambda enc, e: agent.standardize(enc, agent.encode(
+        enc, ds.obs[e, :-1], ds.action[e], ds.obs[e, 1:], episodes=True)[0]))
+    for e in range(2 * per):
+        first = e - e % per
+        candidates = [np.asarray(pair_h(s2.params.enc, jnp.array([e, p])))
+                      for p in range(first, first + per) if p != e]
+        errors = [np.abs(c - table[e]).max() for c in candidates]
+        assert min(errors) < 1e-4, (e, errors)
+    # a pair {e, p} is one context whichever of the two it is drawn for; each layout's 4
+    # episodes make at least 2 distinct pairs, and no two layouts share one
+    assert len({tuple(np.round(row, 3)) for row in table}) >= 4
