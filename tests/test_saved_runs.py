@@ -75,3 +75,8 @@ def test_evaluate_takes_another_agent_over_the_same_parameters():
 def test_evaluate_rejects_a_bad_context_len():
     with pytest.raises(ValueError, match="context_len=0"):
         zsbfm.evaluate(zsbfm.load(FIXTURE), context_len=0)
+
+
+def test_evaluate_rejects_a_bad_context_episodes():
+    with pytest.raises(ValueError, match="context_episodes=0"):
+        zsbfm.evaluate(zsbfm.load(FIXTURE), context_episodes=0)

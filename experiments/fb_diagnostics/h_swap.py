@@ -12,6 +12,9 @@ episode's partial view of the layout costs F (experiments/fb_diagnostics/context
 encoder pools any number of transitions), to see how much context closes the gap.
 --context-episodes: c(mu) (and the revealed map) of contexts of K independent episodes
 (Config.context_episodes; the run's own K is what it was trained and evaluated with).
+Beside each success rate, the map error of that h on the split's layouts: the mean
+|h - true map| over the cells that differ between layouts (--map-contexts fresh contexts per
+layout; 0 for the true map).
 """
 from __future__ import annotations
 
@@ -26,7 +29,7 @@ import numpy as np
 import zsbfm
 from zsbfm.agents import make_agent
 from zsbfm.data.sources import make_env_for
-from zsbfm.evaluate import protocol_score
+from zsbfm.evaluate import context_episode, protocol_score
 
 from context_coverage import revealed  # this script's folder is on sys.path
 
@@ -63,6 +66,22 @@ def revealed_map(agent, params, context):
                      agent.layout_features.mean(0))
 
 
+def map_error(agent, params, env, split: str, context_len: int, episodes: int, n: int, seed: int = 0) -> float:
+    """Mean |h - true map| over the layout family's varying cells, n fresh contexts per layout."""
+    layouts = env.contexts(split)
+    every = np.concatenate([np.asarray(env.contexts(s).walls) for s in ("train", "test")])
+    varies = jnp.asarray((every.min(0) != every.max(0))[1:-1, 1:-1].reshape(-1))
+
+    def one(key, layout):
+        h = agent.context_h(params, context_episode(env, key, layout, context_len, episodes))
+        return jnp.sum(jnp.abs(h - env.context_features(layout)) * varies) / jnp.sum(varies)
+
+    n_layouts = len(np.asarray(layouts.walls))
+    keys = jax.random.split(jax.random.PRNGKey(seed), n_layouts * n).reshape(n_layouts, n, -1)
+    err = jax.jit(jax.vmap(lambda ks, lay: jax.vmap(lambda k: one(k, lay))(ks)))(keys, layouts)
+    return float(np.mean(err))
+
+
 def main():
     p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("run")
@@ -71,6 +90,7 @@ def main():
                    help="also evaluate h = c(mu) of context episodes of these lengths")
     p.add_argument("--context-episodes", nargs="*", type=int, default=[],
                    help="also evaluate with contexts of this many episodes (of the run's context_len)")
+    p.add_argument("--map-contexts", type=int, default=8, help="fresh contexts per layout for the map error")
     p.add_argument("--json", default="")
     a = p.parse_args()
     run = zsbfm.load(a.run)
@@ -98,14 +118,17 @@ def main():
         variants += [(f"c(mu), {k}-episode context", agents[own_name], None, k),
                      (f"revealed map, {k}-episode context", agents[revealed_name], None, k)]
     out = {"run": a.run}
+    params0 = jax.tree_util.tree_map(lambda x: x[0], run.params)  # seed 0
     for name, agent, n, k in variants:
         for split in ("train", "test"):
+            err = map_error(agent, params0, env, split, n or run.cfg.context_len, k or K, a.map_contexts)
+            out[f"{name}/{split}/map_error"] = err
             for protocol in a.protocols:
                 score, valid = zsbfm.evaluate(run, split=split, protocol=protocol, agent=agent, context_len=n,
                                               context_episodes=k)
                 v = float(np.mean(protocol_score(np.asarray(score), np.asarray(valid))))
                 out[f"{name}/{split}/{protocol}"] = v
-                print(f"h = {name:30s} {split:5s} {protocol:6s} {v:.2f}", flush=True)
+                print(f"h = {name:30s} {split:5s} {protocol:6s} {v:.2f}   map error {err:.3f}", flush=True)
     if a.json:
         with open(a.json, "a") as f:
             f.write(json.dumps(out) + "\n")
