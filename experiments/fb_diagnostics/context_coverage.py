@@ -48,6 +48,12 @@ def revealed(cells, actions, shape) -> jax.Array:
     return seen.at[bumped[:, 1], bumped[:, 0]].set(True)
 
 
+def varying_cells(env) -> np.ndarray:
+    """bool[H, W]: the cells walled in some layout of the family (train or test) and free in another."""
+    every = np.concatenate([np.asarray(env.contexts(s).walls) for s in ("train", "test")])
+    return every.min(0) != every.max(0)
+
+
 def door_stats(seen_all, walls, cid) -> dict:
     """Door coverage of contexts: seen_all bool[n, H, W] (what each context revealed), walls
     [layouts, H, W], cid int[n] (each context's layout)."""
@@ -61,8 +67,7 @@ def coverage(env_name: str, episodes: int, seed: int, context_episodes=()) -> di
     cfg = Config.preset(env_name, "bfb", "cpu")
     env = zsbfm.make_env(env_name, n_train=cfg.n_train_layouts)
     walls = {s: np.asarray(env.contexts(s).walls) for s in ("train", "test")}
-    every = np.concatenate(list(walls.values()))
-    varies = every.min(0) != every.max(0)
+    varies = varying_cells(env)
     out = {"env": env_name, "episode_len": env.episode_len, "episodes_per_layout": episodes,
            "varying_cells": int(varies.sum())}
     for split, w in walls.items():

@@ -31,7 +31,7 @@ from zsbfm.agents import make_agent
 from zsbfm.data.sources import make_env_for
 from zsbfm.evaluate import context_episode, protocol_score
 
-from context_coverage import revealed  # this script's folder is on sys.path
+from context_coverage import revealed, varying_cells  # this script's folder is on sys.path
 
 
 def with_context_h(agent, fn):
@@ -66,11 +66,11 @@ def revealed_map(agent, params, context):
                      agent.layout_features.mean(0))
 
 
-def map_error(agent, params, env, split: str, context_len: int, episodes: int, n: int, seed: int = 0) -> float:
-    """Mean |h - true map| over the layout family's varying cells, n fresh contexts per layout."""
+def map_error(agent, params, env, varies, split: str, context_len: int, episodes: int, n: int,
+              seed: int = 0) -> float:
+    """Mean |h - true map| over the varying cells (varies: bool[(size - 2)^2], True where a
+    cell varies; `varying_cells`' interior), n fresh contexts per layout."""
     layouts = env.contexts(split)
-    every = np.concatenate([np.asarray(env.contexts(s).walls) for s in ("train", "test")])
-    varies = jnp.asarray((every.min(0) != every.max(0))[1:-1, 1:-1].reshape(-1))
 
     def one(key, layout):
         h = agent.context_h(params, context_episode(env, key, layout, context_len, episodes))
@@ -119,9 +119,10 @@ def main():
                      (f"revealed map, {k}-episode context", agents[revealed_name], None, k)]
     out = {"run": a.run}
     params0 = jax.tree_util.tree_map(lambda x: x[0], run.params)  # seed 0
+    varies = jnp.asarray(varying_cells(env)[1:-1, 1:-1].reshape(-1))
     for name, agent, n, k in variants:
         for split in ("train", "test"):
-            err = map_error(agent, params0, env, split, n or run.cfg.context_len, k or K, a.map_contexts)
+            err = map_error(agent, params0, env, varies, split, n or run.cfg.context_len, k or K, a.map_contexts)
             out[f"{name}/{split}/map_error"] = err
             for protocol in a.protocols:
                 score, valid = zsbfm.evaluate(run, split=split, protocol=protocol, agent=agent, context_len=n,

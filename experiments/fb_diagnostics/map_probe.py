@@ -30,7 +30,8 @@ from zsbfm.agents import make_agent
 from zsbfm.data.sources import make_env_for
 from zsbfm.evaluate import context_episode, protocol_score
 
-from h_swap import with_context_h  # this script's folder is on sys.path
+from context_coverage import varying_cells  # this script's folder is on sys.path
+from h_swap import with_context_h
 
 
 class ProbeMLP(nn.Module):
@@ -43,19 +44,12 @@ class ProbeMLP(nn.Module):
     n_out: int = 81
 
 
-def context_mu(agent, params, context):
-    """The encoder's mean of one test-time context (one episode or K)."""
-    obs = context.obs
-    return agent.encode(params.enc, obs[..., :-1, :], context.action, obs[..., 1:, :],
-                        episodes=obs.ndim == 3)[0]
-
-
 def encode_contexts(agent, params, env, split: str, n: int, key):
     """mu [layouts * n, mu_dim] of n fresh contexts per layout, and each one's true map."""
     cfg, layouts = agent.cfg, env.contexts(split)
     n_layouts = len(np.asarray(layouts.walls))
     keys = jax.random.split(key, n_layouts * n).reshape(n_layouts, n, -1)
-    one = lambda k, lay: context_mu(agent, params, context_episode(env, k, lay, cfg.context_len,
+    one = lambda k, lay: agent.context_mu(params, context_episode(env, k, lay, cfg.context_len,
                                                                     cfg.context_episodes))
     mu = jax.jit(jax.vmap(lambda ks, lay: jax.vmap(lambda k: one(k, lay))(ks)))(keys, layouts)
     maps = np.repeat(np.asarray(jax.vmap(env.context_features)(layouts)), n, 0)
@@ -78,8 +72,7 @@ def main():
     env = make_env_for(run.cfg, progress=False)
     agent = make_agent(run.cfg, env)
     params = jax.tree_util.tree_map(lambda x: x[0], run.params)
-    every = np.concatenate([np.asarray(env.contexts(s).walls) for s in ("train", "test")])
-    varies = (every.min(0) != every.max(0))[1:-1, 1:-1].reshape(-1)
+    varies = varying_cells(env)[1:-1, 1:-1].reshape(-1)
     for seed in a.seeds:
         probe_seed(a, run, agent, params, env, varies, seed)
 
@@ -113,7 +106,7 @@ def probe_seed(a, run, agent, params, env, varies, seed: int):
     prob = lambda x: np.asarray(jax.nn.sigmoid(net.apply(probe, norm(x))))
 
     def probe_h(agent, params, context):
-        return jnp.round(jax.nn.sigmoid(net.apply(probe, (context_mu(agent, params, context) - mean) / std)))
+        return jnp.round(jax.nn.sigmoid(net.apply(probe, (agent.context_mu(params, context) - mean) / std)))
 
     out = {"run": a.run, "seed": seed, "contexts": a.contexts, "steps": a.steps,
            "linear_head_map_error": [error(linear(x_train), y_train), error(linear(x_test), y_test)],

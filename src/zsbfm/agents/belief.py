@@ -154,13 +154,16 @@ class BeliefFBAgent(FBAgent):
             return self.context_head.apply(enc["context_head"], mu)
         return self.standardize(enc, mu)
 
-    def context_h(self, params: FBParams, context: Context) -> Array:
-        """h of the reward-free context (h_of_mu of its mu): [h_dim]. context.obs [T+1, d]
-        (one episode) or [K, T+1, d] (K episodes)."""
+    def context_mu(self, params: FBParams, context: Context) -> Array:
+        """The encoder's mean of the reward-free context: [mu_dim]. context.obs [T+1, d] (one
+        episode) or [K, T+1, d] (K episodes)."""
         obs = context.obs
-        mu, _ = self.encode(params.enc, obs[..., :-1, :], context.action, obs[..., 1:, :],
-                            episodes=obs.ndim == 3)
-        return self.h_of_mu(params.enc, mu)
+        return self.encode(params.enc, obs[..., :-1, :], context.action, obs[..., 1:, :],
+                           episodes=obs.ndim == 3)[0]
+
+    def context_h(self, params: FBParams, context: Context) -> Array:
+        """h of the reward-free context (h_of_mu of its `context_mu`): [h_dim]."""
+        return self.h_of_mu(params.enc, self.context_mu(params, context))
 
     # -- init ---------------------------------------------------------------------------------
     def init(self, key: Array) -> BeliefState:
