@@ -148,10 +148,17 @@ def test_h_from_context_is_belief_fbs_staged_mean_only(bad):
     (dict(h_from="walls"), "Config.h_from='walls'"),
     (dict(h_train_true=True), "Config.h_train_true=True"),
     (dict(h_from="context", enc_context_coef=0.0), "Config.enc_context_coef=0.0"),
+    (dict(h_from="context", context_loss="huber"), "Config.context_loss='huber'"),
+    (dict(h_from="context", context_head_hidden=(64, 0)), r"Config.context_head_hidden=\(64, 0\)"),
+    (dict(context_loss="bce"), "Config.h_from='mu'"),
+    (dict(context_head_hidden=(64,)), "Config.h_from='mu'"),
+    (dict(env="antwind", h_from="context", context_loss="bce"), "Config.context_loss='bce'"),
 ])
 def test_h_from_settings_are_checked(fields, message):
+    fields = dict(fields)
+    env = fields.pop("env", "fourrooms")
     with pytest.raises(ValueError, match=message):
-        zsbfm.Config.preset("fourrooms", "bfb", **fields)
+        zsbfm.Config.preset(env, "bfb", **fields)
 
 
 @pytest.mark.parametrize("fields, message", [
@@ -226,14 +233,17 @@ def test_h_train_true_trains_f_on_each_transitions_own_layout_walls():
     np.testing.assert_array_equal(np.asarray(h), walls[:, 1:-1, 1:-1].reshape(4, -1).astype(np.float32))
 
 
-def test_h_from_context_predicts_the_wall_map_and_is_what_f_reads():
+@pytest.mark.parametrize("hidden, loss", [((), "mse"), pytest.param((64,), "bce", marks=pytest.mark.slow)])
+def test_h_from_context_predicts_the_wall_map_and_is_what_f_reads(hidden, loss):
     """h_from="context": a short pre-training makes c(mu) of fresh episodes predict their
     layout's wall map better than the best constant (the train layouts' mean map), and the h
-    table F reads holds c(mu) of every episode: 81 numbers, the walls oracle's h."""
+    table F reads holds c(mu) of every episode: 81 numbers, the walls oracle's h (with
+    context_loss="bce", sigmoid of the head's logits: probabilities of a wall)."""
     from zsbfm.data import collect
 
     n = 4
     cfg = zsbfm.Config.preset("fourrooms", "bfb", n_train_layouts=n, episodes_per_layout=50, h_from="context",
+                              context_head_hidden=hidden, context_loss=loss,
                               enc_steps=400, steps=1400, chunk_steps=100, enc_embed=32, enc_mlp=64,
                               pred_hidden=(64, 64), d=16, f_pre_hidden=(8,), f_pre_out=8, f_hidden=(8,),
                               b_hidden=(8,), batch_size=8)
@@ -256,9 +266,35 @@ def test_h_from_context_predicts_the_wall_map_and_is_what_f_reads():
 
     state = jax.jit(agent.build_h_table)(state, ds, jax.random.PRNGKey(4))
     mu = jax.jit(lambda enc: agent.encode(enc, ds.obs[:, :-1], ds.action, ds.obs[:, 1:])[0])(state.params.enc)
-    np.testing.assert_allclose(np.asarray(state.h_table[:, 0]),
-                               np.asarray(agent.context_head.apply(state.params.enc["context_head"], mu)),
-                               rtol=1e-4, atol=1e-4)
+    out = np.asarray(agent.context_head.apply(state.params.enc["context_head"], mu), np.float64)
+    expected = 1.0 / (1.0 + np.exp(-out)) if loss == "bce" else out
+    if loss == "bce":
+        assert np.all((np.asarray(h) > 0) & (np.asarray(h) < 1))
+    np.testing.assert_allclose(np.asarray(state.h_table[:, 0]), expected, rtol=1e-4, atol=1e-4)
+
+
+def test_a_bce_context_head_is_an_mlp_of_logits_and_its_loss_is_the_binary_cross_entropy():
+    """context_loss="bce": h = sigmoid(c(mu)) with c an MLP of context_head_hidden, and the
+    encoder loss's enc_ctx_bce equals -k log p - (1 - k) log(1 - p) averaged, computed here in numpy."""
+    from zsbfm.data import collect
+
+    cfg = zsbfm.Config.preset("fourrooms", "bfb", n_train_layouts=3, episodes_per_layout=2, h_from="context",
+                              context_head_hidden=(16, 8), context_loss="bce", enc_contrast=0.0)
+    env = zsbfm.make_env("fourrooms", n_train=3)
+    agent = make_agent(cfg, env)
+    ds = jax.jit(lambda k: collect(env, k, env.contexts("train"), 2))(jax.random.PRNGKey(0))
+    enc = jax.jit(agent.init)(jax.random.PRNGKey(1)).params.enc
+    kernels = [np.asarray(v["kernel"]).shape for v in enc["context_head"]["params"].values()]
+    assert kernels == [(agent.mu_dim, 16), (16, 8), (8, 81)]
+    window = (ds.obs[:, :-1], ds.action, ds.obs[:, 1:])
+    _, (metrics, mu) = agent.encoder_loss(enc, window, window, jax.random.PRNGKey(2), ds.context_id)
+    logits = np.asarray(agent.context_head.apply(enc["context_head"], mu), np.float64)
+    p = 1.0 / (1.0 + np.exp(-logits))
+    k = np.asarray(agent.layout_features)[np.asarray(ds.context_id)]
+    np.testing.assert_allclose(float(metrics["enc_ctx_bce"]), np.mean(-k * np.log(p) - (1 - k) * np.log(1 - p)),
+                               rtol=1e-4)
+    np.testing.assert_allclose(float(metrics["enc_ctx_mse"]), np.mean((p - k) ** 2), rtol=1e-4)
+    np.testing.assert_allclose(np.asarray(agent.h_of_mu(enc, mu)), p, rtol=1e-5, atol=1e-6)
 
 
 @pytest.mark.parametrize("contrast, enc_steps, episodes", [

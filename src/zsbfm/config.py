@@ -18,7 +18,7 @@ import zsbfm.envs  # noqa: F401  (registers the built-in environments)
 from zsbfm.envs.registry import env_names, env_spec
 # the names of every choice live below config (zsbfm.names); re-exported here for callers
 from zsbfm.names import (ALGOS, BELIEF_ALGOS, DATA_POLICIES, ENCODER_MODES, EXPERT_SOURCES,  # noqa: F401
-                         F_ARCHS, H_FROM, OBS_ENCODINGS, ON_NONFINITE, RFB_Z_STATES, SIZES, SPLUS,
+                         CONTEXT_LOSSES, F_ARCHS, H_FROM, OBS_ENCODINGS, ON_NONFINITE, RFB_Z_STATES, SIZES, SPLUS,
                          TARGET_POLICIES, TWIN_TARGETS, algo_names)
 
 ENVS = env_names()                     # the environments registered at import (zsbfm.envs.registry)
@@ -111,6 +111,8 @@ class Config:
     h_from: str = "mu"
     enc_context_coef: float = 1.0  # weight of that head's regression loss (h_from="context")
     h_train_true: bool = False   # h_from="context": F trains on the train layouts' true features (the walls oracle's h), c(mu) only at test
+    context_head_hidden: tuple[int, ...] = ()  # h_from="context": hidden ReLU layers of the head c; () = linear
+    context_loss: str = "mse"    # h_from="context": the head's loss, "mse" | "bce" (0/1 features: c gives logits, h = sigmoid)
     enc_embed: int = 32          # transformer width
     enc_heads: int = 4           # attention heads per block
     enc_layers: int = 2          # transformer blocks (0: a per-token MLP, mean-pooled)
@@ -250,6 +252,15 @@ class Config:
             if not self.enc_context_coef > 0:
                 bad("enc_context_coef", self.enc_context_coef,
                     "enc_context_coef > 0 with h_from='context' (0 leaves the head c(mu) untrained)")
+        if self.context_loss not in CONTEXT_LOSSES:
+            bad("context_loss", self.context_loss, f"one of {CONTEXT_LOSSES}")
+        if any(w <= 0 for w in self.context_head_hidden):
+            bad("context_head_hidden", self.context_head_hidden, "positive widths")
+        if self.h_from != "context" and (self.context_head_hidden or self.context_loss != "mse"):
+            bad("h_from", self.h_from, "'context' with context_head_hidden or context_loss set (they shape its head)")
+        if self.context_loss == "bce" and not spec.binary_context:
+            bad("context_loss", self.context_loss,
+                f"'mse' for env={self.env!r} (its context features are not 0/1: EnvSpec.binary_context)")
         if self.h_train_true and self.h_from != "context":
             bad("h_train_true", self.h_train_true, "False unless h_from='context' (it replaces c(mu) in training)")
         if not self.enc_context_coef >= 0:

@@ -13,13 +13,16 @@ z_mix with B(s), s a state from the same episode as h (Config.rfb_z_states="epis
 or any dataset state ("dataset": the paper's "s ~ D" and the authors' code, as FB).
 
 What F is given as h (Config.h_from): "mu", the standardised mean above (the paper's), or
-"context": a linear head c(mu) regressed on the layout's context features k(layout) (gridworlds:
+"context": a head c(mu) regressed on the layout's context features k(layout) (gridworlds:
 its interior wall map, the walls oracle's h; agents/oracle.py) with loss
 enc_context_coef * mean |c(mu) - k(layout)|^2 added to the encoder's, and h = c(mu). Trained
 on the train layouts' features only; at test time h = c(mu(one reward-free episode)), a
 prediction of the unseen layout's walls from what the episode saw (least squares: for a
-0/1 wall, the probability of a wall given the episode). With h_train_true, F trains on the true
-features k(layout) instead (the walls oracle's F) and is given c(mu) only at test time.
+0/1 wall, the probability of a wall given the episode). c is linear, or an MLP with
+Config.context_head_hidden; with Config.context_loss="bce" (0/1 features) c gives logits l,
+the loss is the mean binary cross-entropy -k log sigmoid(l) - (1 - k) log sigmoid(-l), and
+h = sigmoid(l). With h_train_true, F trains on the true features k(layout) instead (the walls
+oracle's F) and is given c(mu) only at test time.
 
 Schedules (Config.encoder_mode):
   "staged" (default, the paper's): steps [0, enc_steps) train f_dyn only; at step
@@ -50,6 +53,7 @@ from zsbfm.agents.base import Context, Task
 from zsbfm.agents.fb import FBAgent, FBParams, mix_z
 from zsbfm.data.samplers import Transitions, sample_states, sample_windows
 from zsbfm.nets.encoder import ContextEncoder, Predictor
+from zsbfm.nets.mlp import MLP
 from zsbfm.ops.sphere import project_to_sphere
 from zsbfm.ops.vmf import sample_vmf
 
@@ -95,8 +99,12 @@ class BeliefFBAgent(FBAgent):
         return ContextEncoder(self.mu_dim, c.enc_embed, c.enc_heads, c.enc_layers, c.enc_mlp)
 
     @property
-    def context_head(self) -> nn.Dense:
-        return nn.Dense(self.h_dim)
+    def context_head(self) -> nn.Module:
+        """c: mu [..., mu_dim] -> [..., h_dim] (logits with context_loss="bce")."""
+        hidden = self.cfg.context_head_hidden
+        if not hidden:
+            return nn.Dense(self.h_dim)  # a linear head keeps the parameter names of saved runs
+        return MLP(hidden, self.h_dim, norm_first=False)
 
     @property
     def predictor_net(self) -> Predictor:
@@ -151,7 +159,8 @@ class BeliefFBAgent(FBAgent):
         """F's h from the encoder's mean [..., mu_dim]: standardised mu, or (h_from="context")
         the head's predicted context features c(mu) [..., k]."""
         if self.cfg.h_from == "context":
-            return self.context_head.apply(enc["context_head"], mu)
+            out = self.context_head.apply(enc["context_head"], mu)
+            return jax.nn.sigmoid(out) if self.cfg.context_loss == "bce" else out
         return self.standardize(enc, mu)
 
     def context_mu(self, params: FBParams, context: Context) -> Array:
@@ -204,7 +213,8 @@ class BeliefFBAgent(FBAgent):
         as AntWind's wind under ground contact, the predictor alone need not use h).
 
         With h_from="context", plus enc_context_coef * mean_{i,j} (c(mu_i) - k(context_i))_j^2,
-        the head's regression on the window's layout features (module docstring).
+        the head's regression on the window's layout features (module docstring), or with
+        context_loss="bce" their mean binary cross-entropy with c's logits.
         """
         episodes = self.cfg.context_episodes > 1  # windows [n, K, L, ...]: g predicts all K * L
         mu, log_sigma = self.encode(enc, *window, episodes=episodes)
@@ -221,9 +231,15 @@ class BeliefFBAgent(FBAgent):
             loss = loss + self.cfg.enc_contrast * nce
             metrics["enc_nce"] = nce
         if self.cfg.h_from == "context":
-            pred = self.context_head.apply(enc["context_head"], mu)
-            ctx_mse = jnp.mean((pred - self.layout_features[context]) ** 2)
-            loss = loss + self.cfg.enc_context_coef * ctx_mse
+            out, target_k = self.context_head.apply(enc["context_head"], mu), self.layout_features[context]
+            pred = jax.nn.sigmoid(out) if self.cfg.context_loss == "bce" else out
+            ctx_mse = jnp.mean((pred - target_k) ** 2)  # reported either way: comparable across losses
+            if self.cfg.context_loss == "bce":
+                ctx_loss = jnp.mean(optax.sigmoid_binary_cross_entropy(out, target_k))
+                metrics["enc_ctx_bce"] = ctx_loss
+            else:
+                ctx_loss = ctx_mse
+            loss = loss + self.cfg.enc_context_coef * ctx_loss
             metrics["enc_ctx_mse"] = ctx_mse
         return loss, (metrics, mu)
 
@@ -362,8 +378,9 @@ class BeliefFBAgent(FBAgent):
         return h
 
     # -- the update ----------------------------------------------------------------------------
-    # what encoder_loss reports (enc_nce with enc_contrast > 0, enc_ctx_mse with h_from="context")
-    ENCODER_METRICS = ("enc_mse", "enc_kl", "h_norm", "enc_nce", "enc_ctx_mse")
+    # what encoder_loss reports (enc_nce with enc_contrast > 0, enc_ctx_mse with h_from="context",
+    # enc_ctx_bce with context_loss="bce")
+    ENCODER_METRICS = ("enc_mse", "enc_kl", "h_norm", "enc_nce", "enc_ctx_mse", "enc_ctx_bce")
 
     @staticmethod
     def _pad(metrics: dict, other_shapes: dict) -> dict:

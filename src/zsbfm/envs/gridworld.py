@@ -347,7 +347,7 @@ for _family in FAMILIES.values():
     register(EnvSpec(
         name=_family.name,
         make=functools.partial(GridWorld, _family.name),
-        episode_len=100, discrete=True, n_train=20, finite_states=True,
+        episode_len=100, discrete=True, n_train=20, finite_states=True, binary_context=True,
         max_train=None if _family.max_layouts is None else _family.max_layouts - N_TEST_LAYOUTS,
         presets={"cpu": CPU_GRID, "long": LONG_GRID, "authors": AUTHORS_GRID,
                  "paper": dict(n_train_layouts=20, episodes_per_layout=500, **PAPER_DISCRETE)},

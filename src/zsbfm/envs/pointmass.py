@@ -309,7 +309,7 @@ class PointMass(EnvBase):
 # 30 train mazes x 133 episodes x 250 steps = 1e6 transitions; contexts are 100-step windows.
 # f_arch="normed_trunk" (F before f_arch existed): the Pointmass tables were measured with it.
 register(EnvSpec(
-    name="pointmass", make=PointMass, episode_len=250, discrete=False, n_train=30, cell_map=True,
+    name="pointmass", make=PointMass, episode_len=250, discrete=False, n_train=30, cell_map=True, binary_context=True,
     presets={
         "cpu": dict(n_train_layouts=30, episodes_per_layout=133, episode_len=250, eval_episode_len=250,
                     context_len=100, obs_encoding="raw", gamma=0.98, f_arch="normed_trunk"),
