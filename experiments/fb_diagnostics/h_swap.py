@@ -15,6 +15,11 @@ encoder pools any number of transitions), to see how much context closes the gap
 Beside each success rate, the map error of that h on the split's layouts: the mean
 |h - true map| over the cells that differ between layouts (--map-contexts fresh contexts per
 layout; 0 for the true map).
+--encoder-of RUN_B: the same, with RUN_B's encoder and context head in place of the run's. With
+h_train_true F never reads the encoder (it trains on the true maps), so a run that stops right
+after its encoder phase (`--set steps=<enc_steps + chunk_steps>`) can be scored with the F of a
+full run of the same settings: an encoder variant at the cost of its encoder phase alone. The
+two configs may differ only in the encoder's fields (ENCODER_FIELDS).
 """
 from __future__ import annotations
 
@@ -82,6 +87,29 @@ def map_error(agent, params, env, varies, split: str, context_len: int, episodes
     return float(np.mean(err))
 
 
+# what --encoder-of lets differ between the two runs: the encoder phase and the run's length
+ENCODER_FIELDS = {"enc_embed", "enc_heads", "enc_layers", "enc_mlp", "pred_hidden", "enc_lr", "enc_beta",
+                  "enc_contrast", "enc_cell_tokens", "enc_steps", "enc_batch", "enc_target", "h_dim",
+                  "enc_context_coef", "context_head_hidden", "context_loss", "context_episodes",
+                  "name", "steps", "eval_every", "chunk_steps"}
+
+
+def with_encoder_of(run, path: str):
+    """`run` (its F and B) with the encoder and context head of the run at `path`, under that
+    run's config (module docstring, --encoder-of)."""
+    other = zsbfm.load(path)
+    if not (run.cfg.h_train_true and other.cfg.h_train_true):
+        raise SystemExit(f"--encoder-of needs h_train_true=True in both runs (F must not read the encoder), got "
+                         f"{run.cfg.h_train_true} and {other.cfg.h_train_true}")
+    a, b = dataclasses.asdict(run.cfg), dataclasses.asdict(other.cfg)
+    differ = sorted(k for k in a if a[k] != b[k])
+    if set(differ) - ENCODER_FIELDS:
+        raise SystemExit(f"--encoder-of {path}: its config differs in {sorted(set(differ) - ENCODER_FIELDS)}, "
+                         f"allowed: only {sorted(ENCODER_FIELDS)}")
+    print(f"F and B of the run, encoder of {path} (differs in: {', '.join(differ)})")
+    return dataclasses.replace(other, params=run.params.replace(enc=other.params.enc))
+
+
 def main():
     p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("run")
@@ -91,9 +119,13 @@ def main():
     p.add_argument("--context-episodes", nargs="*", type=int, default=[],
                    help="also evaluate with contexts of this many episodes (of the run's context_len)")
     p.add_argument("--map-contexts", type=int, default=8, help="fresh contexts per layout for the map error")
+    p.add_argument("--encoder-of", default="", metavar="RUN_B",
+                   help="score with RUN_B's encoder and head (both runs h_train_true)")
     p.add_argument("--json", default="")
     a = p.parse_args()
     run = zsbfm.load(a.run)
+    if a.encoder_of:
+        run = with_encoder_of(run, a.encoder_of)
     if run.cfg.h_from != "context":
         raise SystemExit(f"{a.run}: h_from={run.cfg.h_from!r}, expected 'context' (F reads a wall map)")
     env = make_env_for(run.cfg, progress=False)
@@ -117,7 +149,7 @@ def main():
     for k in a.context_episodes:
         variants += [(f"c(mu), {k}-episode context", agents[own_name], None, k),
                      (f"revealed map, {k}-episode context", agents[revealed_name], None, k)]
-    out = {"run": a.run}
+    out = {"run": a.run, **({"encoder_of": a.encoder_of} if a.encoder_of else {})}
     params0 = jax.tree_util.tree_map(lambda x: x[0], run.params)  # seed 0
     varies = jnp.asarray(varying_cells(env)[1:-1, 1:-1].reshape(-1))
     for name, agent, n, k in variants:
