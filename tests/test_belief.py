@@ -273,6 +273,20 @@ def test_h_from_context_predicts_the_wall_map_and_is_what_f_reads(hidden, loss):
     np.testing.assert_allclose(np.asarray(state.h_table[:, 0]), expected, rtol=1e-4, atol=1e-4)
 
 
+def test_gridworld_cell_tokens_name_the_cell_the_wall_map_indexes():
+    """enc_cell_tokens on a gridworld: the token's last n_cells entries are the one-hot of s's
+    cell, and that index reads the same cell of the flattened wall map as walls[y, x]."""
+    env = zsbfm.make_env("fourrooms", n_train=2)
+    agent = make_agent(zsbfm.Config.preset("fourrooms", "bfb", n_train_layouts=2, enc_cell_tokens=True), env)
+    walls = np.asarray(env.contexts("train").walls[0])
+    xy = np.array([[x, y] for y in range(env.size) for x in range(env.size)], np.float32)   # every cell
+    tok = np.asarray(agent.tokens(jnp.asarray(xy), jnp.zeros(len(xy), jnp.int32), jnp.asarray(xy)))
+    idx = tok[:, -env.n_cells:].argmax(-1)
+    np.testing.assert_array_equal(tok[:, -env.n_cells:].sum(-1), 1.0)
+    assert sorted(idx) == list(range(env.n_cells))                     # one cell each, none shared
+    np.testing.assert_array_equal(walls.reshape(-1)[idx], walls[xy[:, 1].astype(int), xy[:, 0].astype(int)])
+
+
 def test_a_bce_context_head_is_an_mlp_of_logits_and_its_loss_is_the_binary_cross_entropy():
     """context_loss="bce": h = sigmoid(c(mu)) with c an MLP of context_head_hidden, and the
     encoder loss's enc_ctx_bce equals -k log p - (1 - k) log(1 - p) averaged, computed here in numpy."""

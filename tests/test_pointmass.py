@@ -200,7 +200,7 @@ def test_actor_bc_pulls_the_policy_to_the_data_actions():
 
 def test_cell_tokens_hold_the_map_cell_of_each_state():
     """enc_cell_tokens: the token's last n_cells entries are the one-hot of the cell
-    floor(y / UNIT) * 8 + floor(x / UNIT), written out by hand; other envs refuse it."""
+    floor(y / UNIT) * 8 + floor(x / UNIT), written out by hand; AntWind (no map) refuses it."""
     from zsbfm.agents import make_agent
 
     env = PointMass()
@@ -210,4 +210,4 @@ def test_cell_tokens_hold_the_map_cell_of_each_state():
     expect = [int(y // UNIT) * 8 + int(x // UNIT) for x, y in pos]
     np.testing.assert_array_equal(tok[:, -env.n_cells:], np.eye(env.n_cells)[expect])
     with pytest.raises(ValueError, match="enc_cell_tokens"):
-        zsbfm.Config.preset("fourrooms", "bfb", enc_cell_tokens=True)
+        zsbfm.Config.preset("antwind", "bfb", enc_cell_tokens=True)

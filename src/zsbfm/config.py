@@ -121,7 +121,7 @@ class Config:
     enc_lr: float = 1e-3         # Adam learning rate of the encoder pre-training
     enc_beta: float = 1e-6       # weight of KL(q(h | episode) || N(0, I)) in the encoder loss
     enc_contrast: float = 0.0    # weight of a same-layout InfoNCE on h (agents/belief.py; 0 = paper)
-    enc_cell_tokens: bool = False  # pointmass: tokens also hold the one-hot map cell of s (agents/belief.py)
+    enc_cell_tokens: bool = False  # tokens also hold the one-hot map cell of s (pointmass, gridworlds; agents/belief.py)
     enc_steps: int = 4_000       # K: encoder pre-training steps before FB (staged mode)
     enc_batch: int = 16          # episodes (context windows) per encoder batch
     enc_target: str = "context"  # predict the window's own transitions, or another episode's of its layout ("context")

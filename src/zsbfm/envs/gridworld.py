@@ -214,6 +214,17 @@ class GridWorld(EnvBase):
         cell = jnp.round(obs).astype(jnp.int32)
         return cell[..., 1] * self.size + cell[..., 0]
 
+    @property
+    def n_cells(self) -> int:
+        """Cells of the grid, border included (Config.enc_cell_tokens)."""
+        return self.size * self.size
+
+    def cell_index(self, obs: Array) -> Array:
+        """Row-major index y * size + x in [0, n_cells) of the cell of each observation [..., 2]
+        (x, y): one-hot, it names the cell where the per-coordinate one-hot names its row and column."""
+        c = jnp.clip(jnp.round(obs).astype(jnp.int32), 0, self.size - 1)
+        return c[..., 1] * self.size + c[..., 0]
+
     def context_features(self, ctx: GridContext) -> Array:
         """The layout as a vector: its interior wall map, float32[(size - 2)^2] (the oracle's
         "walls" context; the border is the same in every layout)."""
@@ -347,7 +358,7 @@ for _family in FAMILIES.values():
     register(EnvSpec(
         name=_family.name,
         make=functools.partial(GridWorld, _family.name),
-        episode_len=100, discrete=True, n_train=20, finite_states=True, binary_context=True,
+        episode_len=100, discrete=True, n_train=20, finite_states=True, binary_context=True, cell_map=True,
         max_train=None if _family.max_layouts is None else _family.max_layouts - N_TEST_LAYOUTS,
         presets={"cpu": CPU_GRID, "long": LONG_GRID, "authors": AUTHORS_GRID,
                  "paper": dict(n_train_layouts=20, episodes_per_layout=500, **PAPER_DISCRETE)},

@@ -26,7 +26,7 @@ class EnvSpec:
     fixed_train: bool = False         # the train contexts are fixed: n_train must equal the default
     finite_states: bool = False       # env.states() enumerates every observation (Config.splus="exact")
     expert_behaviour: bool = False    # its data comes from a trained expert (zsbfm.data.expert; Config.data_policy)
-    cell_map: bool = False            # continuous positions in a cell map: env.cell_index(obs), env.n_cells
+    cell_map: bool = False            # positions fall in a map of cells: env.cell_index(obs), env.n_cells
     binary_context: bool = False      # env.context_features are 0/1 (a wall map): Config.context_loss="bce"
     shares_data: bool = False         # one dataset, recorded once and cached, for every seed (zsbfm.data.sources)
     presets: dict = dataclasses.field(default_factory=dict)         # size -> Config overrides
