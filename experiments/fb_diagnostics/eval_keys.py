@@ -1,0 +1,57 @@
+"""A saved run's paper-protocol score averaged over several evaluation draws.
+
+    python experiments/fb_diagnostics/eval_keys.py runs/<run> [--encoder-of runs/<run_b>] [--keys 8]
+        [--json results/fourrooms_eval_keys.jsonl]
+
+One evaluation of Four-Rooms' 20 held-out layouts is 60 tasks, each with one context draw:
+its success rate has a binomial standard error of about 0.06, the size of the differences
+between encoder variants. This scores the run (seed 0) with the run's own evaluation keys
+(what it reported) and --keys - 1 fresh ones (`zsbfm.evaluate(key=...)`: fresh context
+episodes and rollouts, the same layouts and goals), on train and held-out layouts, and prints
+the mean and the standard error over keys. --encoder-of: F and B of the run with another
+run's encoder and head (h_swap.py --encoder-of; both h_train_true).
+"""
+from __future__ import annotations
+
+import argparse
+import json
+
+import jax
+import numpy as np
+
+import zsbfm
+from zsbfm.evaluate import protocol_score
+
+from h_swap import with_encoder_of  # this script's folder is on sys.path
+
+
+def main():
+    p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("run")
+    p.add_argument("--encoder-of", default="", metavar="RUN_B")
+    p.add_argument("--keys", type=int, default=8, help="evaluation draws: the run's own, then fresh ones")
+    p.add_argument("--protocol", default="paper")
+    p.add_argument("--json", default="")
+    a = p.parse_args()
+    if a.keys <= 0:
+        p.error(f"--keys must be a positive integer, got {a.keys}")
+    run = zsbfm.load(a.run)
+    if a.encoder_of:
+        run = with_encoder_of(run, a.encoder_of)
+    out = {"run": a.run, "encoder_of": a.encoder_of, "protocol": a.protocol, "keys": a.keys}
+    for split in ("train", "test"):
+        scores = []
+        for i in range(a.keys):
+            key = None if i == 0 else jax.random.PRNGKey(1000 + i)
+            score, valid = zsbfm.evaluate(run, split=split, protocol=a.protocol, key=key)
+            scores.append(float(np.mean(protocol_score(np.asarray(score)[0], np.asarray(valid)[0]))))
+        out[split] = scores
+        print(f"{split:5s} {a.protocol}: {np.mean(scores):.3f} +- {np.std(scores) / np.sqrt(len(scores)):.3f} "
+              f"(se over {len(scores)} draws; the run's own {scores[0]:.3f})", flush=True)
+    if a.json:
+        with open(a.json, "a") as f:
+            f.write(json.dumps(out) + "\n")
+
+
+if __name__ == "__main__":
+    main()
