@@ -293,15 +293,16 @@ def test_a_bce_context_head_is_an_mlp_of_logits_and_its_loss_is_the_binary_cross
     from zsbfm.data import collect
 
     cfg = zsbfm.Config.preset("fourrooms", "bfb", n_train_layouts=3, episodes_per_layout=2, h_from="context",
-                              context_head_hidden=(16, 8), context_loss="bce", enc_contrast=0.0)
+                              context_head_hidden=(16, 8), context_loss="bce", enc_contrast=0.0,
+                              enc_embed=8, enc_mlp=8, enc_layers=1, pred_hidden=(8,))
     env = zsbfm.make_env("fourrooms", n_train=3)
     agent = make_agent(cfg, env)
     ds = jax.jit(lambda k: collect(env, k, env.contexts("train"), 2))(jax.random.PRNGKey(0))
     enc = jax.jit(agent.init)(jax.random.PRNGKey(1)).params.enc
     kernels = [np.asarray(v["kernel"]).shape for v in enc["context_head"]["params"].values()]
     assert kernels == [(agent.mu_dim, 16), (16, 8), (8, 81)]
-    window = (ds.obs[:, :-1], ds.action, ds.obs[:, 1:])
-    _, (metrics, mu) = agent.encoder_loss(enc, window, window, jax.random.PRNGKey(2), ds.context_id)
+    window = (ds.obs[:, :10], ds.action[:, :10], ds.obs[:, 1:11])               # 10 transitions suffice
+    _, (metrics, mu) = jax.jit(agent.encoder_loss)(enc, window, window, jax.random.PRNGKey(2), ds.context_id)
     logits = np.asarray(agent.context_head.apply(enc["context_head"], mu), np.float64)
     p = 1.0 / (1.0 + np.exp(-logits))
     k = np.asarray(agent.layout_features)[np.asarray(ds.context_id)]
