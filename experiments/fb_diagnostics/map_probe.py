@@ -8,7 +8,8 @@ contexts (the run's context_episodes x context_len) of every train and held-out 
 encodes them with the run's frozen encoder (seed 0), and fits an MLP (512, 512, sigmoid
 outputs, binary cross-entropy, Adam 1e-3, batch 256) from mu to the layout's interior wall
 map on the *train* layouts' contexts only. Reports the rounded map's error on the cells that
-differ between layouts (train / held-out) for the run's own linear head c(mu) and for the
+differ between layouts (train / held-out) for the run's own head c(mu) (the json's
+"linear_head_map_error", named when c was always linear) and for the
 probe, and the paper-protocol success of the run's F given the probe's rounded map (the
 run's own evaluation keys, `zsbfm.evaluate(agent=...)`). A probe, not a method: it shows
 whether the encoder's mu holds the map and the linear head is what loses it. Each --seeds
@@ -84,7 +85,8 @@ def probe_seed(a, run, agent, params, env, varies, seed: int):
     x_test, y_test = encode_contexts(agent, params, env, "test", a.contexts, k_test)
     error = lambda prob, y: float(np.mean(np.abs(np.round(np.clip(prob, 0, 1)) - y)[:, varies]))
 
-    linear = lambda x: np.asarray(agent.context_head.apply(params.enc["context_head"], jnp.asarray(x)))
+    # the run's own head as F reads it (h_of_mu: c(mu), or sigmoid of c's logits with context_loss="bce")
+    linear = lambda x: np.asarray(agent.h_of_mu(params.enc, jnp.asarray(x)))
     net = ProbeMLP(n_out=y_train.shape[1])
     mean, std = x_train.mean(0), x_train.std(0) + 1e-6
     norm = lambda x: (jnp.asarray(x) - mean) / std
