@@ -71,20 +71,23 @@ def revealed_map(agent, params, context):
                      agent.layout_features.mean(0))
 
 
+def per_layout(env, split: str, n: int, key, fn):
+    """fn(key, layout) for n fresh keys per layout of the split, jitted: [n_layouts, n, ...]."""
+    layouts = env.contexts(split)
+    n_layouts = len(np.asarray(layouts.walls))
+    keys = jax.random.split(key, n_layouts * n).reshape(n_layouts, n, -1)
+    return jax.jit(jax.vmap(lambda ks, lay: jax.vmap(lambda k: fn(k, lay))(ks)))(keys, layouts)
+
+
 def map_error(agent, params, env, varies, split: str, context_len: int, episodes: int, n: int,
               seed: int = 0) -> float:
     """Mean |h - true map| over the varying cells (varies: bool[(size - 2)^2], True where a
     cell varies; `varying_cells`' interior), n fresh contexts per layout."""
-    layouts = env.contexts(split)
-
     def one(key, layout):
         h = agent.context_h(params, context_episode(env, key, layout, context_len, episodes))
         return jnp.sum(jnp.abs(h - env.context_features(layout)) * varies) / jnp.sum(varies)
 
-    n_layouts = len(np.asarray(layouts.walls))
-    keys = jax.random.split(jax.random.PRNGKey(seed), n_layouts * n).reshape(n_layouts, n, -1)
-    err = jax.jit(jax.vmap(lambda ks, lay: jax.vmap(lambda k: one(k, lay))(ks)))(keys, layouts)
-    return float(np.mean(err))
+    return float(np.mean(per_layout(env, split, n, jax.random.PRNGKey(seed), one)))
 
 
 # what --encoder-of lets differ between the two runs: the encoder phase and the run's length

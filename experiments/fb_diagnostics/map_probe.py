@@ -32,7 +32,7 @@ from zsbfm.data.sources import make_env_for
 from zsbfm.evaluate import context_episode, protocol_score
 
 from context_coverage import varying_cells  # this script's folder is on sys.path
-from h_swap import with_context_h
+from h_swap import per_layout, with_context_h
 
 
 class ProbeMLP(nn.Module):
@@ -47,14 +47,12 @@ class ProbeMLP(nn.Module):
 
 def encode_contexts(agent, params, env, split: str, n: int, key):
     """mu [layouts * n, mu_dim] of n fresh contexts per layout, and each one's true map."""
-    cfg, layouts = agent.cfg, env.contexts(split)
-    n_layouts = len(np.asarray(layouts.walls))
-    keys = jax.random.split(key, n_layouts * n).reshape(n_layouts, n, -1)
+    cfg = agent.cfg
     one = lambda k, lay: agent.context_mu(params, context_episode(env, k, lay, cfg.context_len,
                                                                     cfg.context_episodes))
-    mu = jax.jit(jax.vmap(lambda ks, lay: jax.vmap(lambda k: one(k, lay))(ks)))(keys, layouts)
-    maps = np.repeat(np.asarray(jax.vmap(env.context_features)(layouts)), n, 0)
-    return np.asarray(mu).reshape(n_layouts * n, -1), maps
+    mu = np.asarray(per_layout(env, split, n, key, one))                 # [n_layouts, n, mu_dim]
+    maps = np.repeat(np.asarray(jax.vmap(env.context_features)(env.contexts(split))), n, 0)
+    return mu.reshape(-1, mu.shape[-1]), maps
 
 
 def main():
