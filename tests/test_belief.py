@@ -96,6 +96,39 @@ def test_encoder_ignores_padding(encoder):
     assert not np.allclose(np.asarray(mu), np.asarray(mu_other), atol=1e-3)
 
 
+@pytest.mark.parametrize("pool", ["mean", "max"])
+def test_pooling_is_permutation_invariant_and_ignores_padding(pool):
+    net = ContextEncoder(h_dim=6, embed=16, heads=2, layers=2, mlp=32, pool=pool)
+    tokens = jax.random.normal(jax.random.PRNGKey(0), (3, 12, 9))
+    params = net.init(jax.random.PRNGKey(1), tokens, jnp.ones((3, 12), bool))
+    mu, _ = net.apply(params, tokens, jnp.ones((3, 12), bool))
+    perm = jax.random.permutation(jax.random.PRNGKey(3), 12)
+    np.testing.assert_allclose(np.asarray(net.apply(params, tokens[:, perm], jnp.ones((3, 12), bool))[0]),
+                               np.asarray(mu), atol=1e-5)
+    junk = 100.0 * jax.random.normal(jax.random.PRNGKey(4), (3, 5, 9))
+    mask = jnp.concatenate([jnp.ones((3, 12), bool), jnp.zeros((3, 5), bool)], 1)
+    mu_pad, _ = net.apply(params, jnp.concatenate([tokens, junk], 1), mask)
+    np.testing.assert_allclose(np.asarray(mu_pad), np.asarray(mu), atol=1e-5)
+
+
+def test_max_pooling_is_a_max_over_every_token_of_every_episode():
+    """With no attention (layers=0) each token's features are its own, so the max over tokens
+    then over episodes is one max over all K * N tokens, and a repeated token changes
+    nothing; a mean-pooled encoder moves when a token is repeated."""
+    tokens = jax.random.normal(jax.random.PRNGKey(0), (2, 4, 7, 9))              # [B, K, N, in]
+    flat = tokens.reshape(2, 28, 9)
+    nets = {p: ContextEncoder(h_dim=6, embed=16, heads=2, layers=0, mlp=32, pool=p) for p in ("max", "mean")}
+    params = nets["max"].init(jax.random.PRNGKey(1), flat, jnp.ones((2, 28), bool))
+    by_episode, _ = nets["max"].apply(params, tokens, jnp.ones((2, 4, 7), bool), episode_axis=True)
+    at_once, _ = nets["max"].apply(params, flat, jnp.ones((2, 28), bool))
+    np.testing.assert_allclose(np.asarray(by_episode), np.asarray(at_once), atol=1e-5)
+    repeated = jnp.concatenate([flat, flat[:, :1]], 1)
+    for pool, moves in (("max", False), ("mean", True)):
+        a = nets[pool].apply(params, flat, jnp.ones((2, 28), bool))[0]
+        b = nets[pool].apply(params, repeated, jnp.ones((2, 29), bool))[0]
+        assert np.allclose(np.asarray(a), np.asarray(b), atol=1e-5) != moves, pool
+
+
 def test_discrete_actions_enter_the_encoder_one_hot():
     cfg = zsbfm.Config.preset("fourrooms", "bfb")
     agent = make_agent(cfg, zsbfm.make_env("fourrooms"))
@@ -153,6 +186,7 @@ def test_h_from_context_is_belief_fbs_staged_mean_only(bad):
     (dict(context_loss="bce"), "Config.h_from='mu'"),
     (dict(context_head_hidden=(64,)), "Config.h_from='mu'"),
     (dict(env="antwind", h_from="context", context_loss="bce"), "Config.context_loss='bce'"),
+    (dict(enc_pool="sum"), "Config.enc_pool='sum'"),
 ])
 def test_h_from_settings_are_checked(fields, message):
     fields = dict(fields)

@@ -18,7 +18,7 @@ import zsbfm.envs  # noqa: F401  (registers the built-in environments)
 from zsbfm.envs.registry import env_names, env_spec
 # the names of every choice live below config (zsbfm.names); re-exported here for callers
 from zsbfm.names import (ALGOS, BELIEF_ALGOS, DATA_POLICIES, ENCODER_MODES, EXPERT_SOURCES,  # noqa: F401
-                         CONTEXT_LOSSES, F_ARCHS, H_FROM, OBS_ENCODINGS, ON_NONFINITE, RFB_Z_STATES, SIZES, SPLUS,
+                         CONTEXT_LOSSES, ENC_POOLS, F_ARCHS, H_FROM, OBS_ENCODINGS, ON_NONFINITE, RFB_Z_STATES, SIZES, SPLUS,
                          TARGET_POLICIES, TWIN_TARGETS, algo_names)
 
 ENVS = env_names()                     # the environments registered at import (zsbfm.envs.registry)
@@ -115,8 +115,9 @@ class Config:
     context_loss: str = "mse"    # h_from="context": the head's loss, "mse" | "bce" (0/1 features: c gives logits, h = sigmoid)
     enc_embed: int = 32          # transformer width
     enc_heads: int = 4           # attention heads per block
-    enc_layers: int = 2          # transformer blocks (0: a per-token MLP, mean-pooled)
+    enc_layers: int = 2          # transformer blocks (0: a per-token MLP, then pooled)
     enc_mlp: int = 64            # width of each block's MLP
+    enc_pool: str = "mean"       # pooling of an episode's tokens: "mean" (the paper's) | "max" (elementwise; nets/encoder.py)
     pred_hidden: tuple[int, ...] = (64, 64)     # predictor g(s, a, h) -> s'
     enc_lr: float = 1e-3         # Adam learning rate of the encoder pre-training
     enc_beta: float = 1e-6       # weight of KL(q(h | episode) || N(0, I)) in the encoder loss
@@ -234,6 +235,8 @@ class Config:
             bad("enc_beta", self.enc_beta, "enc_beta >= 0")
         if self.enc_contrast < 0:
             bad("enc_contrast", self.enc_contrast, "enc_contrast >= 0")
+        if self.enc_pool not in ENC_POOLS:
+            bad("enc_pool", self.enc_pool, f"one of {ENC_POOLS}")
         if self.enc_cell_tokens and not spec.cell_map:
             bad("enc_cell_tokens", self.enc_cell_tokens,
                 f"False for env={self.env!r} (it has no cell map of positions: EnvSpec.cell_map)")

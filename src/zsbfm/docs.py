@@ -67,7 +67,9 @@ def configuration_markdown() -> str:
         flag = " *(sweepable)*" if name in SWEEPABLE else ""
         rows.append(f"| `{name}` | `{value!r}` | {text.replace('|', '/')}{flag} |")
     rows += ["", "## Allowed values", ""]
-    for const in ("ENVS", "ALGOS", "SIZES", "TARGET_POLICIES", "SPLUS", "F_ARCHS"):
+    for const in ("ENVS", "ALGOS", "SIZES", "TARGET_POLICIES", "SPLUS", "F_ARCHS", "TWIN_TARGETS", "OBS_ENCODINGS",
+                  "ENCODER_MODES", "H_FROM", "CONTEXT_LOSSES", "ENC_POOLS", "RFB_Z_STATES", "DATA_POLICIES",
+                  "EXPERT_SOURCES", "ON_NONFINITE"):
         rows.append(f"- `{const}`: {', '.join(map(str, getattr(config, const)))}")
     rows += ["", "## Removed options", "",
              f"Saved runs that used one of these need zsbfm at commit `{config.REMOVED_IN}` or earlier; "

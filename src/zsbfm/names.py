@@ -20,6 +20,7 @@ ENCODER_MODES = ("staged", "joint")
 # what Belief-FB gives F as h: the encoder's mean "mu" | its prediction of the layout's "context" features
 H_FROM = ("mu", "context")
 CONTEXT_LOSSES = ("mse", "bce")  # the loss of Belief-FB's context head (agents/belief.py)
+ENC_POOLS = ("mean", "max")      # how the context encoder pools an episode's tokens (nets/encoder.py)
 TARGET_POLICIES = ("greedy", "boltzmann", "uniform")
 SPLUS = ("batch", "states", "exact")    # the s+ estimator of the FB loss (agents/fb.py)
 F_ARCHS = ("reference", "normed_trunk", "mlp")  # F's (and with "mlp" B's) layer layout (nets/fb.py)

@@ -1,8 +1,10 @@
 """The dynamics-context encoder f_dyn and its self-supervised predictor g.
 
 f_dyn reads a *set* of transitions of one episode, one token per transition, with no
-positional encoding, and mean-pools over the unmasked tokens: the output is invariant to
-the order of the transitions and unaffected by padding. A context of several episodes
+positional encoding, and mean-pools over the unmasked tokens (pool="max": an elementwise max
+over them, so a feature that any one transition shows, a bump into a wall, survives
+pooling undiluted by the others): the output is invariant to the order of the transitions
+and unaffected by padding. A context of several episodes
 (Config.context_episodes) is encoded episode by episode (attention within each) and the
 pooled features are combined by an elementwise max over episodes: a feature that any
 episode shows (a door it passed), the context shows; invariant to the episodes' order. It returns a diagonal Gaussian
@@ -51,6 +53,7 @@ class ContextEncoder(nn.Module):
     heads: int = 4
     layers: int = 2
     mlp: int = 128
+    pool: str = "mean"   # over an episode's unmasked tokens: "mean" | "max" (zsbfm.names.ENC_POOLS)
 
     @nn.compact
     def __call__(self, tokens, mask, episode_axis: bool = False):
@@ -58,8 +61,12 @@ class ContextEncoder(nn.Module):
         for _ in range(self.layers):
             x = EncoderBlock(self.embed, self.heads, self.mlp)(x, mask)
         x = nn.LayerNorm()(x)
-        w = mask.astype(jnp.float32)[..., None]
-        pooled = jnp.sum(x * w, axis=-2) / jnp.maximum(jnp.sum(w, axis=-2), 1.0)
+        if self.pool == "max":  # an all-masked episode pools to 0 (and is left out of the max over episodes)
+            pooled = jnp.max(jnp.where(mask[..., None], x, -jnp.inf), axis=-2)
+            pooled = jnp.where(jnp.any(mask, -1, keepdims=True), pooled, 0.0)
+        else:
+            w = mask.astype(jnp.float32)[..., None]
+            pooled = jnp.sum(x * w, axis=-2) / jnp.maximum(jnp.sum(w, axis=-2), 1.0)
         if episode_axis:  # [..., K, embed] -> [..., embed]
             pooled = jnp.max(jnp.where(jnp.any(mask, -1, keepdims=True), pooled, -jnp.inf), axis=-2)
         mu = Dense(self.h_dim, name="mu")(pooled)
