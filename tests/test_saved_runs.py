@@ -80,3 +80,28 @@ def test_evaluate_rejects_a_bad_context_len():
 def test_evaluate_rejects_a_bad_context_episodes():
     with pytest.raises(ValueError, match="context_episodes=0"):
         zsbfm.evaluate(zsbfm.load(FIXTURE), context_episodes=0)
+
+
+def test_evaluate_over_a_stack_of_keys_is_each_key_alone_in_one_program():
+    """key=[D] keys: one compiled program whose draw i is evaluate(key=keys[i]), scores and
+    validity alike; the draws differ from each other (fresh contexts and rollouts)."""
+    import jax
+    import jax.numpy as jnp
+
+    run = zsbfm.load(FIXTURE)
+    keys = jnp.stack([jax.random.PRNGKey(5), jax.random.PRNGKey(6)])
+    score, valid = zsbfm.evaluate(run, split="test", protocol="random_start", key=keys)
+    assert score.shape[:2] == (2, run.cfg.num_seeds)
+    for i in range(2):
+        one_score, one_valid = zsbfm.evaluate(run, split="test", protocol="random_start", key=keys[i])
+        np.testing.assert_array_equal(np.asarray(score[i]), np.asarray(one_score))
+        np.testing.assert_array_equal(np.asarray(valid[i]), np.asarray(one_valid))
+    assert not np.array_equal(np.asarray(score[0]), np.asarray(score[1]))
+    success = zsbfm.evaluate(run, split="train", key=keys)  # the default goals, too
+    assert success.shape[:2] == (2, run.cfg.num_seeds) and success.dtype == bool
+
+
+@pytest.mark.parametrize("key", [np.zeros((2, 3, 2), np.uint32), np.zeros((3,), np.uint32)])
+def test_evaluate_rejects_a_key_of_another_shape(key):
+    with pytest.raises(ValueError, match=r"key of shape \("):
+        zsbfm.evaluate(zsbfm.load(FIXTURE), key=key)

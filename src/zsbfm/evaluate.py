@@ -170,7 +170,9 @@ def evaluate(run, contexts=None, goals=None, key=None, split: str = "test", prot
     key: None (default) draws each seed's context episodes and rollouts exactly as the
     run's own evaluation did (`zsbfm.keys.eval_key` of the seed's key, then the split's
     key), so with the default contexts and goals this reproduces run.results[split];
-    a key draws them afresh from it.
+    a key draws them afresh from it; a stack of D keys (uint32[D, 2], or typed [D]) draws
+    D independent evaluations in one compiled program, each exactly as that key alone
+    would, and every result gains a leading [D] axis (how much a score owes to its draw).
     protocol: None for the goals above; or one of the env's protocols (`protocols_of`:
     "paper", "dense", ...): then returns the (score [seeds, n_contexts, G], valid) pair of
     that protocol on `contexts`, as in run.results["protocols"] (the score is the mean of
@@ -200,13 +202,16 @@ def evaluate(run, contexts=None, goals=None, key=None, split: str = "test", prot
         raise ValueError(f"context_episodes={context_episodes!r} is invalid: expected a positive integer")
     contexts = env.contexts(split) if contexts is None else contexts
     seeds = jax.tree_util.tree_leaves(run.params)[0].shape[0]
+    draws = None if key is None else _key_batch(key)
+    if draws is not None:  # one program over the draws, each as evaluate(run, key=key[i]) (below)
+        return jax.jit(jax.vmap(lambda k: evaluate(run, contexts, goals, k, split, protocol, agent,
+                                                   context_len, context_episodes)))(key)
     if key is None:
         keys = jax.vmap(eval_key)(seed_keys(cfg)[:seeds])
     else:
         keys = jax.random.split(key, seeds)
     # the same split of each seed's key as the training evaluation (train.make_train)
-    k_train, k_test, k_states = (jnp.stack(ks) for ks in zip(*[jax.random.split(k, 3) for k in keys]))
-    k_split = k_train if split == "train" else k_test
+    k_split, k_states = _split_keys(keys, split)
     reward_obs = None
     if metric_of(env) == "return":  # z from the run's (cached) dataset; goals unused
         from zsbfm.data.sources import shared_dataset
@@ -228,3 +233,22 @@ def evaluate(run, contexts=None, goals=None, key=None, split: str = "test", prot
                                                           cfg.eval_episode_len, context_len, r, context_episodes),
                           in_axes=(0, 0, 0 if reward_obs is not None else None)))
     return fn(run.params, k_split, reward_obs)
+
+
+def _key_batch(key) -> int | None:
+    """None for one PRNG key; D for a stack of D keys; an error for anything else."""
+    typed = jax.dtypes.issubdtype(getattr(key, "dtype", None), jax.dtypes.prng_key)
+    shape = tuple(jnp.shape(key)) if typed else tuple(jnp.shape(key))[:-1]
+    if typed or (jnp.ndim(key) >= 1 and jnp.shape(key)[-1] == 2):
+        if shape == ():
+            return None
+        if len(shape) == 1:
+            return shape[0]
+    raise ValueError(f"key of shape {jnp.shape(key)} is invalid: expected one PRNG key or a stack of them [D]")
+
+
+def _split_keys(keys, split: str):
+    """Each seed's evaluation key -> (its `split` rollout key, its reward-states key), as
+    train.make_train splits it: [seeds, 2] -> ([seeds, 2], [seeds, 2])."""
+    k_train, k_test, k_states = jax.vmap(lambda k: jax.random.split(k, 3))(keys).swapaxes(0, 1)
+    return (k_train if split == "train" else k_test), k_states
