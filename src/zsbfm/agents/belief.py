@@ -159,9 +159,13 @@ class BeliefFBAgent(FBAgent):
         """F's h from the encoder's mean [..., mu_dim]: standardised mu, or (h_from="context")
         the head's predicted context features c(mu) [..., k]."""
         if self.cfg.h_from == "context":
-            out = self.context_head.apply(enc["context_head"], mu)
-            return jax.nn.sigmoid(out) if self.cfg.context_loss == "bce" else out
+            return self.head_features(self.context_head.apply(enc["context_head"], mu))
         return self.standardize(enc, mu)
+
+    def head_features(self, out: Array) -> Array:
+        """The context features the head's output c(mu) predicts: sigmoid(c) with
+        context_loss="bce" (c are logits), c itself with "mse"."""
+        return jax.nn.sigmoid(out) if self.cfg.context_loss == "bce" else out
 
     def context_mu(self, params: FBParams, context: Context) -> Array:
         """The encoder's mean of the reward-free context: [mu_dim]. context.obs [T+1, d] (one
@@ -232,7 +236,7 @@ class BeliefFBAgent(FBAgent):
             metrics["enc_nce"] = nce
         if self.cfg.h_from == "context":
             out, target_k = self.context_head.apply(enc["context_head"], mu), self.layout_features[context]
-            pred = jax.nn.sigmoid(out) if self.cfg.context_loss == "bce" else out
+            pred = self.head_features(out)
             ctx_mse = jnp.mean((pred - target_k) ** 2)  # reported either way: comparable across losses
             if self.cfg.context_loss == "bce":
                 ctx_loss = jnp.mean(optax.sigmoid_binary_cross_entropy(out, target_k))
