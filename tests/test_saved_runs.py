@@ -105,3 +105,10 @@ def test_evaluate_over_a_stack_of_keys_is_each_key_alone_in_one_program():
 def test_evaluate_rejects_a_key_of_another_shape(key):
     with pytest.raises(ValueError, match=r"key of shape \("):
         zsbfm.evaluate(zsbfm.load(FIXTURE), key=key)
+
+
+def test_score_draws_rejects_a_bad_number_of_draws():
+    from zsbfm.evaluate import score_draws
+
+    with pytest.raises(ValueError, match="draws=0"):
+        score_draws(zsbfm.load(FIXTURE), 0)

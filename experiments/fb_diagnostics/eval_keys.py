@@ -6,8 +6,8 @@
 One evaluation of Four-Rooms' 20 held-out layouts is 60 tasks, each with one context draw:
 its success rate has a binomial standard error of about 0.06, the size of the differences
 between encoder variants. This scores the run (seed 0) with the run's own evaluation keys
-(what it reported) and --keys - 1 fresh ones (`zsbfm.evaluate(key=...)` with a stack of
-keys, one compiled program: fresh context episodes and rollouts, the same layouts and goals), on train and held-out layouts, and prints
+(what it reported) and --keys - 1 fresh ones (`zsbfm.evaluate.score_draws`: fresh context
+episodes and rollouts, the same layouts and goals, one compiled program), on train and held-out layouts, and prints
 the mean and the standard error over keys. --encoder-of: F and B of the run with another
 run's encoder and head (h_swap.py --encoder-of; both h_train_true).
 """
@@ -16,12 +16,10 @@ from __future__ import annotations
 import argparse
 import json
 
-import jax
-import jax.numpy as jnp
 import numpy as np
 
 import zsbfm
-from zsbfm.evaluate import protocol_score
+from zsbfm.evaluate import score_draws
 
 from h_swap import with_encoder_of  # this script's folder is on sys.path
 
@@ -41,12 +39,7 @@ def main():
         run = with_encoder_of(run, a.encoder_of)
     out = {"run": a.run, "encoder_of": a.encoder_of, "protocol": a.protocol, "keys": a.keys}
     for split in ("train", "test"):
-        score, valid = zsbfm.evaluate(run, split=split, protocol=a.protocol)  # the run's own draw
-        scores = [float(protocol_score(score[0], valid[0]))]
-        if a.keys > 1:  # the fresh draws in one program: key 1000 + i for draw i
-            fresh = jnp.stack([jax.random.PRNGKey(1000 + i) for i in range(1, a.keys)])
-            score, valid = zsbfm.evaluate(run, split=split, protocol=a.protocol, key=fresh)
-            scores += [float(x) for x in protocol_score(score[:, 0], valid[:, 0])]
+        scores = [float(x) for x in score_draws(run, a.keys, split, a.protocol)[:, 0]]  # seed 0
         out[split] = scores
         print(f"{split:5s} {a.protocol}: {np.mean(scores):.3f} +- {np.std(scores) / np.sqrt(len(scores)):.3f} "
               f"(se over {len(scores)} draws; the run's own {scores[0]:.3f})", flush=True)

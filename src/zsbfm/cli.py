@@ -129,7 +129,7 @@ def init_distributed(coordinator: str = "", num_processes: int = 0, process_id: 
     return True
 
 
-def evaluate(path: tyro.conf.Positional[str], split: str = "test", protocol: str = "") -> None:
+def evaluate(path: tyro.conf.Positional[str], split: str = "test", protocol: str = "", draws: int = 1) -> None:
     """Evaluate a saved run on a split and print its score per seed (success rate, or episode
     return for antwind): with the run's own evaluation keys, the numbers it reported.
 
@@ -138,21 +138,26 @@ def evaluate(path: tyro.conf.Positional[str], split: str = "test", protocol: str
         split: train | test.
         protocol: "" for the official score; or one of the env's protocols (gridworlds:
             paper, dense, random_start; pointmass: paper, dense).
+        draws: 1 for the run's own draw of context episodes and rollouts; N > 1 also scores
+            N - 1 fresh draws and prints each seed's mean and standard error over the N.
     """
     import numpy as np
 
-    from zsbfm.evaluate import evaluate as run_eval
-    from zsbfm.evaluate import protocol_score
+    from zsbfm.evaluate import score_draws
     from zsbfm.run import load
 
+    if draws <= 0:
+        raise ValueError(f"--draws {draws} is invalid: expected a positive integer")
     run = load(path)
-    if protocol:
-        score = np.asarray(protocol_score(*run_eval(run, split=split, protocol=protocol)))
-    else:
-        score = np.asarray(run_eval(run, split=split), np.float32).mean((1, 2))
+    scores = np.asarray(score_draws(run, draws, split, protocol or None))  # [draws, seeds]
+    score = scores.mean(0)
     metric = run.results.get("metric", "success")
-    print(json.dumps({"split": split, "protocol": protocol or "official",
-                      f"{metric}_per_seed": score.round(4).tolist(), "mean": round(float(score.mean()), 4)}))
+    out = {"split": split, "protocol": protocol or "official",
+           f"{metric}_per_seed": score.round(4).tolist(), "mean": round(float(score.mean()), 4)}
+    if draws > 1:
+        out.update(draws=draws, se_per_seed=(scores.std(0) / np.sqrt(draws)).round(4).tolist(),
+                   own_draw_per_seed=scores[0].round(4).tolist())
+    print(json.dumps(out))
 
 
 @_with_names
