@@ -90,8 +90,9 @@ def map_error(agent, params, env, varies, split: str, context_len: int, episodes
     return float(np.mean(per_layout(env, split, n, jax.random.PRNGKey(seed), one)))
 
 
-# what --encoder-of lets differ between the two runs: the encoder phase and the run's length
-ENCODER_FIELDS = {"enc_embed", "enc_heads", "enc_layers", "enc_mlp", "pred_hidden", "enc_lr", "enc_beta",
+# what --encoder-of lets differ between the two runs: the encoder phase, the run's length, and
+# the seed (an encoder trained from another seed, on that seed's data: its spread over one F)
+ENCODER_FIELDS = {"seed", "enc_embed", "enc_heads", "enc_layers", "enc_mlp", "pred_hidden", "enc_lr", "enc_beta",
                   "enc_contrast", "enc_cell_tokens", "enc_pool", "enc_steps", "enc_batch", "enc_target", "h_dim",
                   "enc_context_coef", "context_head_hidden", "context_loss", "context_episodes",
                   "name", "steps", "eval_every", "chunk_steps"}
