@@ -90,12 +90,15 @@ def map_error(agent, params, env, varies, split: str, context_len: int, episodes
     return float(np.mean(per_layout(env, split, n, jax.random.PRNGKey(seed), one)))
 
 
-# what --encoder-of lets differ between the two runs: the encoder phase, the run's length, and
-# the seed (an encoder trained from another seed, on that seed's data: its spread over one F)
-ENCODER_FIELDS = {"seed", "enc_embed", "enc_heads", "enc_layers", "enc_mlp", "pred_hidden", "enc_lr", "enc_beta",
-                  "enc_contrast", "enc_cell_tokens", "enc_pool", "enc_steps", "enc_batch", "enc_target", "h_dim",
-                  "enc_context_coef", "context_head_hidden", "context_loss", "context_episodes",
-                  "name", "steps", "eval_every", "chunk_steps"}
+# what --encoder-of lets differ between the two runs: the encoder phase, the run's length, the
+# seed (an encoder trained from another seed, on that seed's data: its spread over one F), and
+# the encoder's train layouts (DATA_FIELDS: an encoder that read more layouts than F did)
+DATA_FIELDS = {"n_train_layouts", "episodes_per_layout"}
+ENCODER_FIELDS = DATA_FIELDS | {
+    "seed", "enc_embed", "enc_heads", "enc_layers", "enc_mlp", "pred_hidden", "enc_lr", "enc_beta",
+    "enc_contrast", "enc_cell_tokens", "enc_pool", "enc_steps", "enc_batch", "enc_target", "h_dim",
+    "enc_context_coef", "context_head_hidden", "context_loss", "context_episodes",
+    "name", "steps", "eval_every", "chunk_steps"}
 
 
 def with_encoder_of(run, path: str):
@@ -111,6 +114,10 @@ def with_encoder_of(run, path: str):
         raise SystemExit(f"--encoder-of {path}: its config differs in {sorted(set(differ) - ENCODER_FIELDS)}, "
                          f"allowed: only {sorted(ENCODER_FIELDS)}")
     print(f"F and B of the run, encoder of {path} (differs in: {', '.join(differ)})")
+    if set(differ) & DATA_FIELDS:
+        print(f"  the encoder trained on other layouts ({', '.join(sorted(set(differ) & DATA_FIELDS))}): 'train' "
+              f"below is {path}'s train layouts, which F may not have seen; the held-out ('test') layouts are "
+              f"the family's fixed ones either way")
     return dataclasses.replace(other, params=run.params.replace(enc=other.params.enc))
 
 
