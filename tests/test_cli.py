@@ -60,21 +60,21 @@ def test_evaluate_takes_the_run_directory_and_reports_its_numbers(tmp_path, caps
 
 
 def test_evaluate_over_draws_reports_the_own_draw_and_the_spread(capsys):
-    """--draws 3: the run's own draw (its reported numbers) plus 2 fresh ones, one program;
-    the mean and standard error are those of the three."""
+    """--draws 3: the run's own draw (its reported numbers) plus 2 fresh ones; the mean and
+    standard error are those of the three."""
     fixture = os.path.join(os.path.dirname(__file__), "fixtures", "fb_c971d54")  # a 2-seed FB run
     run = zsbfm.load(fixture)
     main(["evaluate", fixture, "--split", "test", "--protocol", "random_start", "--draws", "3"])
     out = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
     own = run.results["protocols"]["random_start"]["test"]
-    np.testing.assert_allclose(out["own_draw_per_seed"], own, atol=1e-4)
-    assert out["draws"] == 3 and len(out["se_per_seed"]) == run.cfg.num_seeds
+    np.testing.assert_allclose(out["success_per_seed"], own, atol=1e-4)
+    assert out["draws"] == 3 and len(out["se_per_seed"]) == len(out["mean_over_draws_per_seed"]) == 2
     assert max(out["se_per_seed"]) > 0  # the fresh draws differ from the own one
     with pytest.raises(SystemExit) as e:
         main(["evaluate", fixture, "--draws", "0"])
     assert e.value.code == 2
     err = capsys.readouterr().err.strip().splitlines()
-    assert len(err) == 1 and "--draws 0" in err[0]
+    assert len(err) == 1 and "draws=0" in err[0]
 
 
 def test_help_names_the_module_and_has_plain_flags(capsys):

@@ -112,3 +112,13 @@ def test_score_draws_rejects_a_bad_number_of_draws():
 
     with pytest.raises(ValueError, match="draws=0"):
         score_draws(zsbfm.load(FIXTURE), 0)
+
+
+def test_typed_keys_are_read_as_their_raw_data():
+    import jax
+
+    from zsbfm.evaluate import _raw_keys
+
+    np.testing.assert_array_equal(np.asarray(_raw_keys(jax.random.key(3))), np.asarray(jax.random.PRNGKey(3)))
+    stack = jax.random.split(jax.random.key(3), 4)
+    assert _raw_keys(stack).shape == (4, 2)

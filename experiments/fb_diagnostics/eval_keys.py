@@ -7,9 +7,11 @@ One evaluation of Four-Rooms' 20 held-out layouts is 60 tasks, each with one con
 its success rate has a binomial standard error of about 0.06, the size of the differences
 between encoder variants. This scores the run (seed 0) with the run's own evaluation keys
 (what it reported) and --keys - 1 fresh ones (`zsbfm.evaluate.score_draws`: fresh context
-episodes and rollouts, the same layouts and goals, one compiled program), on train and held-out layouts, and prints
-the mean and the standard error over keys. --encoder-of: F and B of the run with another
-run's encoder and head (h_swap.py --encoder-of; both h_train_true).
+episodes and rollouts, the same layouts and goals), on train and held-out layouts, and
+prints the mean and its standard error over the draws (sample std / sqrt(keys)).
+--encoder-of: F and B of the run with another run's encoder and head (h_swap.py
+--encoder-of; both h_train_true); the draws are then under that run's config, so draw 0 is
+that run's own evaluation keys.
 """
 from __future__ import annotations
 
@@ -41,7 +43,8 @@ def main():
     for split in ("train", "test"):
         scores = [float(x) for x in score_draws(run, a.keys, split, a.protocol)[:, 0]]  # seed 0
         out[split] = scores
-        print(f"{split:5s} {a.protocol}: {np.mean(scores):.3f} +- {np.std(scores) / np.sqrt(len(scores)):.3f} "
+        se = np.std(scores, ddof=1) / np.sqrt(len(scores)) if len(scores) > 1 else float("nan")
+        print(f"{split:5s} {a.protocol}: {np.mean(scores):.3f} +- {se:.3f} "
               f"(se over {len(scores)} draws; the run's own {scores[0]:.3f})", flush=True)
     if a.json:
         with open(a.json, "a") as f:

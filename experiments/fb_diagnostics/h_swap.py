@@ -19,7 +19,8 @@ layout; 0 for the true map).
 h_train_true F never reads the encoder (it trains on the true maps), so a run that stops right
 after its encoder phase (`--set steps=<enc_steps + chunk_steps>`) can be scored with the F of a
 full run of the same settings: an encoder variant at the cost of its encoder phase alone. The
-two configs may differ only in the encoder's fields (ENCODER_FIELDS).
+two configs may differ only in the encoder's fields, its seed and its train layouts
+(ENCODER_FIELDS; with other train layouts, "train" means RUN_B's).
 """
 from __future__ import annotations
 

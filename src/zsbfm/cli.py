@@ -139,24 +139,23 @@ def evaluate(path: tyro.conf.Positional[str], split: str = "test", protocol: str
         protocol: "" for the official score; or one of the env's protocols (gridworlds:
             paper, dense, random_start; pointmass: paper, dense).
         draws: 1 for the run's own draw of context episodes and rollouts; N > 1 also scores
-            N - 1 fresh draws and prints each seed's mean and standard error over the N.
+            N - 1 fresh draws (zsbfm.evaluate.score_draws) and adds each seed's mean over the
+            N and its standard error (sample std / sqrt N).
     """
     import numpy as np
 
     from zsbfm.evaluate import score_draws
     from zsbfm.run import load
 
-    if draws <= 0:
-        raise ValueError(f"--draws {draws} is invalid: expected a positive integer")
     run = load(path)
     scores = np.asarray(score_draws(run, draws, split, protocol or None))  # [draws, seeds]
-    score = scores.mean(0)
     metric = run.results.get("metric", "success")
     out = {"split": split, "protocol": protocol or "official",
-           f"{metric}_per_seed": score.round(4).tolist(), "mean": round(float(score.mean()), 4)}
+           f"{metric}_per_seed": scores[0].round(4).tolist(), "mean": round(float(scores[0].mean()), 4)}
     if draws > 1:
-        out.update(draws=draws, se_per_seed=(scores.std(0) / np.sqrt(draws)).round(4).tolist(),
-                   own_draw_per_seed=scores[0].round(4).tolist())
+        out.update(draws=draws, mean_over_draws_per_seed=scores.mean(0).round(4).tolist(),
+                   se_per_seed=(scores.std(0, ddof=1) / np.sqrt(draws)).round(4).tolist(),
+                   mean_over_draws=round(float(scores.mean()), 4))
     print(json.dumps(out))
 
 

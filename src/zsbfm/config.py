@@ -224,7 +224,7 @@ class Config:
             if not isinstance(v, int) or isinstance(v, bool) or v <= 0:
                 bad(f, v, "a positive integer")
         if not isinstance(self.enc_layers, int) or isinstance(self.enc_layers, bool) or self.enc_layers < 0:
-            bad("enc_layers", self.enc_layers, "a non-negative integer (0: per-token embedding, mean-pooled)")
+            bad("enc_layers", self.enc_layers, "a non-negative integer (0: per-token embedding, then pooled)")
         if not isinstance(self.h_dim, int) or self.h_dim < 0:
             bad("h_dim", self.h_dim, "a non-negative integer (0 means d)")
         if self.enc_embed % self.enc_heads:

@@ -15,7 +15,7 @@ import io
 import re
 import tokenize
 
-from zsbfm import config
+from zsbfm import config, names
 from zsbfm.config import SWEEPABLE, Config
 
 
@@ -67,10 +67,10 @@ def configuration_markdown() -> str:
         flag = " *(sweepable)*" if name in SWEEPABLE else ""
         rows.append(f"| `{name}` | `{value!r}` | {text.replace('|', '/')}{flag} |")
     rows += ["", "## Allowed values", ""]
-    for const in ("ENVS", "ALGOS", "SIZES", "TARGET_POLICIES", "SPLUS", "F_ARCHS", "TWIN_TARGETS", "OBS_ENCODINGS",
-                  "ENCODER_MODES", "H_FROM", "CONTEXT_LOSSES", "ENC_POOLS", "RFB_Z_STATES", "DATA_POLICIES",
-                  "EXPERT_SOURCES", "ON_NONFINITE"):
-        rows.append(f"- `{const}`: {', '.join(map(str, getattr(config, const)))}")
+    # every name constant of zsbfm.names (in source order), after the registered environments
+    consts = ["ENVS"] + [k for k, v in vars(names).items() if k.isupper() and isinstance(v, tuple)]
+    for const in consts:
+        rows.append(f"- `{const}`: {', '.join(map(str, getattr(config if const == 'ENVS' else names, const)))}")
     rows += ["", "## Removed options", "",
              f"Saved runs that used one of these need zsbfm at commit `{config.REMOVED_IN}` or earlier; "
              "a saved config.json holding the value that remains loads as before "

@@ -171,8 +171,9 @@ def evaluate(run, contexts=None, goals=None, key=None, split: str = "test", prot
     run's own evaluation did (`zsbfm.keys.eval_key` of the seed's key, then the split's
     key), so with the default contexts and goals this reproduces run.results[split];
     a key draws them afresh from it; a stack of D keys (uint32[D, 2], or typed [D]) draws
-    D independent evaluations in one compiled program, each exactly as that key alone
-    would, and every result gains a leading [D] axis (how much a score owes to its draw).
+    D evaluations in one compiled program, draw i from the same random numbers as
+    key=keys[i] alone, and every result gains a leading [D] axis (how much a score owes to
+    its draw; memory grows D-fold).
     protocol: None for the goals above; or one of the env's protocols (`protocols_of`:
     "paper", "dense", ...): then returns the (score [seeds, n_contexts, G], valid) pair of
     that protocol on `contexts`, as in run.results["protocols"] (the score is the mean of
@@ -202,37 +203,40 @@ def evaluate(run, contexts=None, goals=None, key=None, split: str = "test", prot
         raise ValueError(f"context_episodes={context_episodes!r} is invalid: expected a positive integer")
     contexts = env.contexts(split) if contexts is None else contexts
     seeds = jax.tree_util.tree_leaves(run.params)[0].shape[0]
-    draws = None if key is None else _key_batch(key)
-    if draws is not None:  # one program over the draws, each as evaluate(run, key=key[i]) (below)
-        return jax.jit(jax.vmap(lambda k: evaluate(run, contexts, goals, k, split, protocol, agent,
-                                                   context_len, context_episodes)))(key)
     if key is None:
-        keys = jax.vmap(eval_key)(seed_keys(cfg)[:seeds])
+        keys = jax.vmap(eval_key)(seed_keys(cfg)[:seeds])                  # [seeds, 2]
     else:
-        keys = jax.random.split(key, seeds)
+        key = _raw_keys(key)                                              # [2] or [D, 2]
+        keys = jnp.reshape(jax.vmap(lambda k: jax.random.split(k, seeds))(key.reshape(-1, 2)),
+                           key.shape[:-1] + (seeds, 2))
     # the same split of each seed's key as the training evaluation (train.make_train)
     k_split, k_states = _split_keys(keys, split)
     reward_obs = None
-    if metric_of(env) == "return":  # z from the run's (cached) dataset; goals unused
+    if metric_of(env) == "return":  # z from the run's (cached) dataset, on the host; goals unused
         from zsbfm.data.sources import shared_dataset
 
         ds = shared_dataset(cfg, env)
-        reward_obs = jax.vmap(lambda k: reward_states(k, ds))(k_states)
+        draw = lambda k: reward_states(k, ds)
+        reward_obs = jax.vmap(draw)(k_states) if k_states.ndim == 2 else jax.vmap(jax.vmap(draw))(k_states)
     elif protocol is None:
         goals = default_goals(env, contexts) if goals is None else jnp.asarray(goals, jnp.float32)
         if goals.ndim != 3 or goals.shape[-1] != env.obs_dim:
             raise ValueError(f"goals must be [n_contexts, n_goals, {env.obs_dim}], got shape {goals.shape}")
-    if protocol is not None:
-        if protocol not in protocols_of(env):
-            raise ValueError(f"protocol={protocol!r} is invalid for {cfg.env}: expected one of {protocols_of(env)}")
-        fn = jax.jit(jax.vmap(lambda p, k, r: evaluate_protocol(agent, env, p, k, contexts, protocol,
-                                                                 cfg.eval_episode_len, context_len, r, context_episodes),
-                              in_axes=(0, 0, 0 if reward_obs is not None else None)))
-        return fn(run.params, k_split, reward_obs)
-    fn = jax.jit(jax.vmap(lambda p, k, r: evaluate_params(agent, env, p, k, contexts, goals,
-                                                          cfg.eval_episode_len, context_len, r, context_episodes),
-                          in_axes=(0, 0, 0 if reward_obs is not None else None)))
-    return fn(run.params, k_split, reward_obs)
+    if protocol is not None and protocol not in protocols_of(env):
+        raise ValueError(f"protocol={protocol!r} is invalid for {cfg.env}: expected one of {protocols_of(env)}")
+
+    def one_seed(params, k, r):
+        if protocol is not None:
+            return evaluate_protocol(agent, env, params, k, contexts, protocol, cfg.eval_episode_len,
+                                     context_len, r, context_episodes)
+        return evaluate_params(agent, env, params, k, contexts, goals, cfg.eval_episode_len, context_len, r,
+                               context_episodes)
+
+    r_axis = 0 if reward_obs is not None else None
+    fn = jax.vmap(one_seed, in_axes=(0, 0, r_axis))
+    if k_split.ndim == 3:  # draws [D, seeds, 2]: the same parameters under every draw
+        fn = jax.vmap(fn, in_axes=(None, 0, r_axis))
+    return jax.jit(fn)(run.params, k_split, reward_obs)
 
 
 FRESH_DRAW_KEY = 1000  # draw i >= 1 of `score_draws` uses PRNGKey(FRESH_DRAW_KEY + i)
@@ -241,14 +245,17 @@ FRESH_DRAW_KEY = 1000  # draw i >= 1 of `score_draws` uses PRNGKey(FRESH_DRAW_KE
 def score_draws(run, draws: int, split: str = "test", protocol: str | None = None, **kwargs):
     """A run's score per seed over `draws` evaluation draws: float32[draws, seeds]. Draw 0 is
     the run's own (what it reported), draws 1.. are fresh context episodes and rollouts from
-    PRNGKey(FRESH_DRAW_KEY + i), all in one compiled program. The score is the official one
-    (mean success, or return) or, with a protocol, `protocol_score`. kwargs go to `evaluate`.
+    PRNGKey(FRESH_DRAW_KEY + i), together in one compiled program (two compiles in all). The
+    score is the official one (mean success, or return) or, with a protocol, `protocol_score`.
+    kwargs go to `evaluate` (all but key: the draws choose the keys).
 
     One Four-Rooms evaluation is 60 held-out tasks with one context draw each: a binomial
     standard error of about 0.06 on the success rate, which the mean over draws shrinks.
     """
     if not isinstance(draws, int) or isinstance(draws, bool) or draws <= 0:
         raise ValueError(f"draws={draws!r} is invalid: expected a positive integer")
+    if "key" in kwargs:
+        raise ValueError("score_draws takes no key: draw 0 is the run's own, draw i PRNGKey(FRESH_DRAW_KEY + i)")
 
     def score(out):  # [..., seeds, n_contexts, G] -> [..., seeds]
         if protocol is None:
@@ -262,20 +269,21 @@ def score_draws(run, draws: int, split: str = "test", protocol: str | None = Non
     return jnp.concatenate(scores)
 
 
-def _key_batch(key) -> int | None:
-    """None for one PRNG key; D for a stack of D keys; an error for anything else."""
-    typed = jax.dtypes.issubdtype(getattr(key, "dtype", None), jax.dtypes.prng_key)
-    shape = tuple(jnp.shape(key)) if typed else tuple(jnp.shape(key))[:-1]
-    if typed or (jnp.ndim(key) >= 1 and jnp.shape(key)[-1] == 2):
-        if shape == ():
-            return None
-        if len(shape) == 1:
-            return shape[0]
-    raise ValueError(f"key of shape {jnp.shape(key)} is invalid: expected one PRNG key or a stack of them [D]")
+def _raw_keys(key):
+    """One PRNG key or a stack of them, as raw uint32 [2] or [D, 2] (a typed key's data);
+    anything else is a one-line error."""
+    if jax.dtypes.issubdtype(getattr(key, "dtype", None), jax.dtypes.prng_key):
+        key = jax.random.key_data(key)
+    key = jnp.asarray(key)
+    if key.dtype != jnp.uint32 or key.ndim not in (1, 2) or key.shape[-1] != 2:
+        raise ValueError(f"key of shape {key.shape} and dtype {key.dtype} is invalid: expected one PRNG key "
+                         f"(jax.random.PRNGKey) or a stack of them [D, 2]")
+    return key
 
 
 def _split_keys(keys, split: str):
     """Each seed's evaluation key -> (its `split` rollout key, its reward-states key), as
-    train.make_train splits it: [seeds, 2] -> ([seeds, 2], [seeds, 2])."""
-    k_train, k_test, k_states = jax.vmap(lambda k: jax.random.split(k, 3))(keys).swapaxes(0, 1)
+    train.make_train splits it: [..., seeds, 2] -> ([..., seeds, 2], [..., seeds, 2])."""
+    three = jax.vmap(lambda k: jax.random.split(k, 3))(keys.reshape(-1, 2))       # [n, 3, 2]
+    k_train, k_test, k_states = (three[:, i].reshape(keys.shape) for i in range(3))
     return (k_train if split == "train" else k_test), k_states
