@@ -72,12 +72,14 @@ def revealed_map(agent, params, context):
                      agent.layout_features.mean(0))
 
 
-def per_layout(env, split: str, n: int, key, fn):
-    """fn(key, layout) for n fresh keys per layout of the split, jitted: [n_layouts, n, ...]."""
+def per_layout(env, split: str, n: int, key, fn, batch: int = 20):
+    """fn(key, layout) for n fresh keys per layout of the split, jitted: [n_layouts, n, ...];
+    `batch` layouts at a time (all 640 layouts' contexts at once do not fit in 24 GiB)."""
     layouts = env.contexts(split)
     n_layouts = len(np.asarray(layouts.walls))
     keys = jax.random.split(key, n_layouts * n).reshape(n_layouts, n, -1)
-    return jax.jit(jax.vmap(lambda ks, lay: jax.vmap(lambda k: fn(k, lay))(ks)))(keys, layouts)
+    one_layout = lambda args: jax.vmap(lambda k: fn(k, args[1]))(args[0])
+    return jax.jit(lambda ks, lays: jax.lax.map(one_layout, (ks, lays), batch_size=batch))(keys, layouts)
 
 
 def map_error(agent, params, env, varies, split: str, context_len: int, episodes: int, n: int,
