@@ -1,13 +1,13 @@
 """The dynamics-context encoder f_dyn and its self-supervised predictor g.
 
 f_dyn reads a *set* of transitions of one episode, one token per transition, with no
-positional encoding, and mean-pools over the unmasked tokens (pool="max": an elementwise max
-over them, so a feature that any one transition shows, a bump into a wall, survives
-pooling undiluted by the others): the output is invariant to the order of the transitions
-and unaffected by padding. A context of several episodes
-(Config.context_episodes) is encoded episode by episode (attention within each) and the
-pooled features are combined by an elementwise max over episodes: a feature that any
-episode shows (a door it passed), the context shows; invariant to the episodes' order. It returns a diagonal Gaussian
+positional encoding, and pools over the unmasked tokens: by their mean, or (pool="max") by
+an elementwise max, so that a feature one transition shows, a bump into a wall, is not
+diluted by the others. Either way the output is invariant to the order of the transitions
+and unaffected by padding. A context of several episodes (Config.context_episodes) is
+encoded episode by episode (attention within each) and the pooled features are combined by
+an elementwise max over episodes: a feature that any episode shows (a door it passed), the
+context shows; invariant to the episodes' order. It returns a diagonal Gaussian
 q(h | episode) = N(mu, diag(exp(log_sigma))^2). Everything runs in float32.
 
 g(s_t, a_t, h) regresses s_{t+1}: predicting the next state needs the layout, so h must
