@@ -201,6 +201,8 @@ def evaluate(run, contexts=None, goals=None, key=None, split: str = "test", prot
         context_episodes = cfg.context_episodes
     elif not isinstance(context_episodes, int) or isinstance(context_episodes, bool) or context_episodes <= 0:
         raise ValueError(f"context_episodes={context_episodes!r} is invalid: expected a positive integer")
+    if protocol is not None and protocol not in protocols_of(env):  # before the dataset load below
+        raise ValueError(f"protocol={protocol!r} is invalid for {cfg.env}: expected one of {protocols_of(env)}")
     contexts = env.contexts(split) if contexts is None else contexts
     seeds = jax.tree_util.tree_leaves(run.params)[0].shape[0]
     if key is None:
@@ -222,8 +224,6 @@ def evaluate(run, contexts=None, goals=None, key=None, split: str = "test", prot
         goals = default_goals(env, contexts) if goals is None else jnp.asarray(goals, jnp.float32)
         if goals.ndim != 3 or goals.shape[-1] != env.obs_dim:
             raise ValueError(f"goals must be [n_contexts, n_goals, {env.obs_dim}], got shape {goals.shape}")
-    if protocol is not None and protocol not in protocols_of(env):
-        raise ValueError(f"protocol={protocol!r} is invalid for {cfg.env}: expected one of {protocols_of(env)}")
 
     def one_seed(params, k, r):
         if protocol is not None:
