@@ -122,3 +122,8 @@ def test_typed_keys_are_read_as_their_raw_data():
     np.testing.assert_array_equal(np.asarray(_raw_keys(jax.random.key(3))), np.asarray(jax.random.PRNGKey(3)))
     stack = jax.random.split(jax.random.key(3), 4)
     assert _raw_keys(stack).shape == (4, 2)
+
+
+def test_evaluate_rejects_an_unknown_protocol():
+    with pytest.raises(ValueError, match="protocol='nope' is invalid for fourrooms"):
+        zsbfm.evaluate(zsbfm.load(FIXTURE), protocol="nope")
