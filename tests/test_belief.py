@@ -96,9 +96,9 @@ def test_encoder_ignores_padding(encoder):
     assert not np.allclose(np.asarray(mu), np.asarray(mu_other), atol=1e-3)
 
 
-@pytest.mark.parametrize("pool", ["mean", "max"])
-def test_pooling_is_permutation_invariant_and_ignores_padding(pool):
-    net = ContextEncoder(h_dim=6, embed=16, heads=2, layers=2, mlp=32, pool=pool)
+@pytest.mark.parametrize("pool, pool_width", [("mean", 0), ("max", 0), ("max", 40)])
+def test_pooling_is_permutation_invariant_and_ignores_padding(pool, pool_width):
+    net = ContextEncoder(h_dim=6, embed=16, heads=2, layers=2, mlp=32, pool=pool, pool_width=pool_width)
     tokens = jax.random.normal(jax.random.PRNGKey(0), (3, 12, 9))
     params = net.init(jax.random.PRNGKey(1), tokens, jnp.ones((3, 12), bool))
     mu, _ = net.apply(params, tokens, jnp.ones((3, 12), bool))
@@ -127,6 +127,23 @@ def test_max_pooling_is_a_max_over_every_token_of_every_episode():
         a = nets[pool].apply(params, flat, jnp.ones((2, 28), bool))[0]
         b = nets[pool].apply(params, repeated, jnp.ones((2, 29), bool))[0]
         assert np.allclose(np.asarray(a), np.asarray(b), atol=1e-5) != moves, pool
+
+
+def test_pool_width_maps_each_token_to_that_many_channels_before_the_max():
+    """pool_width = P: mu = W_mu max_t(W_P LN(E tok_t) + b_P) + b_mu, computed here by hand
+    from the parameters (layers=0: no attention), P independent channels."""
+    tokens = jax.random.normal(jax.random.PRNGKey(0), (2, 7, 9))
+    net = ContextEncoder(h_dim=6, embed=16, heads=2, layers=0, mlp=32, pool="max", pool_width=40)
+    params = net.init(jax.random.PRNGKey(1), tokens, jnp.ones((2, 7), bool))
+    p = params["params"]
+    assert p["pool_in"]["kernel"].shape == (16, 40) and p["mu"]["kernel"].shape == (40, 6)
+    x = tokens @ p["Dense_0"]["kernel"] + p["Dense_0"]["bias"]
+    x = (x - x.mean(-1, keepdims=True)) / jnp.sqrt(x.var(-1, keepdims=True) + 1e-6)
+    x = x * p["LayerNorm_0"]["scale"] + p["LayerNorm_0"]["bias"]
+    pooled = jnp.max(x @ p["pool_in"]["kernel"] + p["pool_in"]["bias"], axis=1)
+    mu = pooled @ p["mu"]["kernel"] + p["mu"]["bias"]
+    np.testing.assert_allclose(np.asarray(net.apply(params, tokens, jnp.ones((2, 7), bool))[0]),
+                               np.asarray(mu), rtol=1e-4, atol=1e-4)
 
 
 def test_discrete_actions_enter_the_encoder_one_hot():
@@ -187,6 +204,7 @@ def test_h_from_context_is_belief_fbs_staged_mean_only(bad):
     (dict(context_head_hidden=(64,)), "Config.h_from='mu'"),
     (dict(env="antwind", h_from="context", context_loss="bce"), "Config.context_loss='bce'"),
     (dict(enc_pool="sum"), "Config.enc_pool='sum'"),
+    (dict(enc_pool_width=-1), "Config.enc_pool_width=-1"),
 ])
 def test_h_from_settings_are_checked(fields, message):
     fields = dict(fields)

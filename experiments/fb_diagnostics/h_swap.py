@@ -99,7 +99,7 @@ def map_error(agent, params, env, varies, split: str, context_len: int, episodes
 DATA_FIELDS = {"n_train_layouts", "episodes_per_layout"}
 ENCODER_FIELDS = DATA_FIELDS | {
     "seed", "enc_embed", "enc_heads", "enc_layers", "enc_mlp", "pred_hidden", "enc_lr", "enc_beta",
-    "enc_contrast", "enc_cell_tokens", "enc_pool", "enc_steps", "enc_batch", "enc_target", "h_dim",
+    "enc_contrast", "enc_cell_tokens", "enc_pool", "enc_pool_width", "enc_steps", "enc_batch", "enc_target", "h_dim",
     "enc_context_coef", "context_head_hidden", "context_loss", "context_episodes",
     "name", "steps", "eval_every", "chunk_steps"}
 

@@ -96,7 +96,8 @@ class BeliefFBAgent(FBAgent):
     @property
     def encoder_net(self) -> ContextEncoder:
         c = self.cfg
-        return ContextEncoder(self.mu_dim, c.enc_embed, c.enc_heads, c.enc_layers, c.enc_mlp, c.enc_pool)
+        return ContextEncoder(self.mu_dim, c.enc_embed, c.enc_heads, c.enc_layers, c.enc_mlp, c.enc_pool,
+                              c.enc_pool_width)
 
     @property
     def context_head(self) -> nn.Module:

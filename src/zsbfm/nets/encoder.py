@@ -3,7 +3,10 @@
 f_dyn reads a *set* of transitions of one episode, one token per transition, with no
 positional encoding, and pools over the unmasked tokens: by their mean, or (pool="max") by
 an elementwise max, so that a feature one transition shows, a bump into a wall, is not
-diluted by the others. Either way the output is invariant to the order of the transitions
+diluted by the others. With pool_width = P > 0 each token's features are first mapped
+linearly to P channels (a Deep-Sets phi), so the max can keep more separate pieces of
+evidence than the embedding has dimensions (a 9x9 map has 81 cells, each seen free or
+bumped into). Either way the output is invariant to the order of the transitions
 and unaffected by padding. A context of several episodes (Config.context_episodes) is
 encoded episode by episode (attention within each) and the pooled features are combined by
 an elementwise max over episodes: a feature that any episode shows (a door it passed), the
@@ -54,6 +57,7 @@ class ContextEncoder(nn.Module):
     layers: int = 2
     mlp: int = 128
     pool: str = "mean"   # over an episode's unmasked tokens: "mean" | "max" (zsbfm.names.ENC_POOLS)
+    pool_width: int = 0  # P > 0: a linear map of each token to P channels before the pool
 
     @nn.compact
     def __call__(self, tokens, mask, episode_axis: bool = False):
@@ -61,6 +65,8 @@ class ContextEncoder(nn.Module):
         for _ in range(self.layers):
             x = EncoderBlock(self.embed, self.heads, self.mlp)(x, mask)
         x = nn.LayerNorm()(x)
+        if self.pool_width:
+            x = Dense(self.pool_width, name="pool_in")(x)
         if self.pool == "max":  # an all-masked episode pools to 0 (and is left out of the max over episodes)
             pooled = jnp.max(jnp.where(mask[..., None], x, -jnp.inf), axis=-2)
             pooled = jnp.where(jnp.any(mask, -1, keepdims=True), pooled, 0.0)
