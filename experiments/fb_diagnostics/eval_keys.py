@@ -2,6 +2,7 @@
 
     python experiments/fb_diagnostics/eval_keys.py runs/<run> [--encoder-of runs/<run_b>] [--keys 8]
         [--json results/fourrooms_eval_keys.jsonl]
+    python experiments/fb_diagnostics/eval_keys.py runs/<f_0> runs/<f_1> ... --encoder-of runs/<e_0> runs/<e_1> ...
 
 One evaluation of Four-Rooms' 20 held-out layouts is 60 tasks, each with one context draw:
 its success rate has a binomial standard error of about 0.06, the size of the differences
@@ -12,6 +13,9 @@ prints the mean and its standard error over the draws (sample std / sqrt(keys)).
 --encoder-of: F and B of the run with another run's encoder and head (h_swap.py
 --encoder-of; both h_train_true); the draws are then under that run's config, so draw 0 is
 that run's own evaluation keys.
+Several runs (with as many --encoder-of, paired by position: independently trained
+seeds): each is scored as above, then the mean over the runs of their means over draws and
+its standard error over the runs (sample std / sqrt(runs)), the seed-to-seed spread.
 """
 from __future__ import annotations
 
@@ -28,27 +32,43 @@ from h_swap import with_encoder_of  # this script's folder is on sys.path
 
 def main():
     p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    p.add_argument("run")
-    p.add_argument("--encoder-of", default="", metavar="RUN_B")
+    p.add_argument("runs", nargs="+", metavar="RUN")
+    p.add_argument("--encoder-of", nargs="*", default=[], metavar="RUN_B",
+                   help="one per RUN (paired by position), or none")
     p.add_argument("--keys", type=int, default=8, help="evaluation draws: the run's own, then fresh ones")
     p.add_argument("--protocol", default="paper")
     p.add_argument("--json", default="")
     a = p.parse_args()
     if a.keys <= 0:
         p.error(f"--keys must be a positive integer, got {a.keys}")
-    run = zsbfm.load(a.run)
-    if a.encoder_of:
-        run = with_encoder_of(run, a.encoder_of)
-    out = {"run": a.run, "encoder_of": a.encoder_of, "protocol": a.protocol, "keys": a.keys}
-    for split in ("train", "test"):
-        scores = [float(x) for x in score_draws(run, a.keys, split, a.protocol)[:, 0]]  # seed 0
-        out[split] = scores
-        se = np.std(scores, ddof=1) / np.sqrt(len(scores)) if len(scores) > 1 else float("nan")
-        print(f"{split:5s} {a.protocol}: {np.mean(scores):.3f} +- {se:.3f} "
-              f"(se over {len(scores)} draws; the run's own {scores[0]:.3f})", flush=True)
-    if a.json:
-        with open(a.json, "a") as f:
-            f.write(json.dumps(out) + "\n")
+    if a.encoder_of and len(a.encoder_of) != len(a.runs):
+        p.error(f"--encoder-of: {len(a.encoder_of)} runs for {len(a.runs)} RUNs; give one per RUN or none")
+    means = {"train": [], "test": []}
+    for i, path in enumerate(a.runs):
+        encoder_of = a.encoder_of[i] if a.encoder_of else ""
+        print(f"{path}" + (f" with the encoder of {encoder_of}" if encoder_of else ""), flush=True)
+        run = zsbfm.load(path)
+        if encoder_of:
+            run = with_encoder_of(run, encoder_of)
+        out = {"run": path, "encoder_of": encoder_of, "protocol": a.protocol, "keys": a.keys}
+        for split in ("train", "test"):
+            scores = [float(x) for x in score_draws(run, a.keys, split, a.protocol)[:, 0]]  # seed 0
+            out[split] = scores
+            means[split].append(float(np.mean(scores)))
+            print(f"  {split:5s} {a.protocol}: {np.mean(scores):.3f} +- {se(scores):.3f} "
+                  f"(se over {len(scores)} draws; the run's own {scores[0]:.3f})", flush=True)
+        if a.json:
+            with open(a.json, "a") as f:
+                f.write(json.dumps(out) + "\n")
+    if len(a.runs) > 1:
+        for split, m in means.items():
+            print(f"over the {len(m)} runs, {split:5s} {a.protocol}: {np.mean(m):.3f} +- {se(m):.3f} "
+                  f"(se over runs; each run's mean over draws: {', '.join(f'{x:.3f}' for x in m)})")
+
+
+def se(xs) -> float:
+    """Standard error of the mean: sample std (ddof 1) / sqrt(n); nan for one value."""
+    return float(np.std(xs, ddof=1) / np.sqrt(len(xs))) if len(xs) > 1 else float("nan")
 
 
 if __name__ == "__main__":
