@@ -205,6 +205,7 @@ def test_h_from_context_is_belief_fbs_staged_mean_only(bad):
     (dict(env="antwind", h_from="context", context_loss="bce"), "Config.context_loss='bce'"),
     (dict(enc_pool="sum"), "Config.enc_pool='sum'"),
     (dict(enc_pool_width=-1), "Config.enc_pool_width=-1"),
+    (dict(enc_pool_width=64), "Config.enc_pool_width=64"),
 ])
 def test_h_from_settings_are_checked(fields, message):
     fields = dict(fields)

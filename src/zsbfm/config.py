@@ -118,7 +118,7 @@ class Config:
     enc_layers: int = 2          # transformer blocks (0: a per-token MLP, then pooled)
     enc_mlp: int = 64            # width of each block's MLP
     enc_pool: str = "mean"       # pooling of an episode's tokens: "mean" (the paper's) | "max" (elementwise; nets/encoder.py)
-    enc_pool_width: int = 0      # P > 0: each token mapped linearly to P channels before the pool (0: the embedding's)
+    enc_pool_width: int = 0      # P > 0 (enc_pool="max" only): each token mapped linearly to P channels before the max (0: the embedding's)
     pred_hidden: tuple[int, ...] = (64, 64)     # predictor g(s, a, h) -> s'
     enc_lr: float = 1e-3         # Adam learning rate of the encoder pre-training
     enc_beta: float = 1e-6       # weight of KL(q(h | episode) || N(0, I)) in the encoder loss
@@ -238,6 +238,9 @@ class Config:
             bad("enc_contrast", self.enc_contrast, "enc_contrast >= 0")
         if not isinstance(self.enc_pool_width, int) or isinstance(self.enc_pool_width, bool) or self.enc_pool_width < 0:
             bad("enc_pool_width", self.enc_pool_width, "a non-negative integer (0: pool the token embedding itself)")
+        if self.enc_pool_width and self.enc_pool != "max":
+            bad("enc_pool_width", self.enc_pool_width,
+                f"0 with enc_pool={self.enc_pool!r} (a linear map before a mean folds into mu's own; use enc_pool='max')")
         if self.enc_pool not in ENC_POOLS:
             bad("enc_pool", self.enc_pool, f"one of {ENC_POOLS}")
         if self.enc_cell_tokens and not spec.cell_map:
