@@ -127,3 +127,11 @@ def test_typed_keys_are_read_as_their_raw_data():
 def test_evaluate_rejects_an_unknown_protocol():
     with pytest.raises(ValueError, match="protocol='nope' is invalid for fourrooms"):
         zsbfm.evaluate(zsbfm.load(FIXTURE), protocol="nope")
+
+
+def test_standard_error_is_the_sample_std_over_root_n():
+    from zsbfm.evaluate import standard_error
+    # [1, 2, 3, 4]: sample variance 5/3, so se = sqrt(5/3) / 2
+    np.testing.assert_allclose(standard_error([1.0, 2.0, 3.0, 4.0]), np.sqrt(5 / 3) / 2)
+    np.testing.assert_allclose(standard_error(np.array([[1.0, 0.0], [3.0, 0.0]])), [1.0, 0.0])  # per column
+    assert np.isnan(standard_error([0.3])) and standard_error(np.ones((1, 3))).shape == (3,)

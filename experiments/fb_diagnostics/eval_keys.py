@@ -25,7 +25,7 @@ import json
 import numpy as np
 
 import zsbfm
-from zsbfm.evaluate import score_draws
+from zsbfm.evaluate import score_draws, standard_error
 
 from h_swap import with_encoder_of  # this script's folder is on sys.path
 
@@ -55,20 +55,15 @@ def main():
             scores = [float(x) for x in score_draws(run, a.keys, split, a.protocol)[:, 0]]  # seed 0
             out[split] = scores
             means[split].append(float(np.mean(scores)))
-            print(f"  {split:5s} {a.protocol}: {np.mean(scores):.3f} +- {se(scores):.3f} "
+            print(f"  {split:5s} {a.protocol}: {np.mean(scores):.3f} +- {float(standard_error(scores)):.3f} "
                   f"(se over {len(scores)} draws; the run's own {scores[0]:.3f})", flush=True)
         if a.json:
             with open(a.json, "a") as f:
                 f.write(json.dumps(out) + "\n")
     if len(a.runs) > 1:
         for split, m in means.items():
-            print(f"over the {len(m)} runs, {split:5s} {a.protocol}: {np.mean(m):.3f} +- {se(m):.3f} "
+            print(f"over the {len(m)} runs, {split:5s} {a.protocol}: {np.mean(m):.3f} +- {float(standard_error(m)):.3f} "
                   f"(se over runs; each run's mean over draws: {', '.join(f'{x:.3f}' for x in m)})")
-
-
-def se(xs) -> float:
-    """Standard error of the mean: sample std (ddof 1) / sqrt(n); nan for one value."""
-    return float(np.std(xs, ddof=1) / np.sqrt(len(xs))) if len(xs) > 1 else float("nan")
 
 
 if __name__ == "__main__":

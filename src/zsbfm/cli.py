@@ -144,7 +144,7 @@ def evaluate(path: tyro.conf.Positional[str], split: str = "test", protocol: str
     """
     import numpy as np
 
-    from zsbfm.evaluate import score_draws
+    from zsbfm.evaluate import score_draws, standard_error
     from zsbfm.run import load
 
     run = load(path)
@@ -154,7 +154,7 @@ def evaluate(path: tyro.conf.Positional[str], split: str = "test", protocol: str
            f"{metric}_per_seed": scores[0].round(4).tolist(), "mean": round(float(scores[0].mean()), 4)}
     if draws > 1:
         out.update(draws=draws, mean_over_draws_per_seed=scores.mean(0).round(4).tolist(),
-                   se_per_seed=(scores.std(0, ddof=1) / np.sqrt(draws)).round(4).tolist(),
+                   se_per_seed=standard_error(scores).round(4).tolist(),
                    mean_over_draws=round(float(scores.mean()), 4))
     print(json.dumps(out))
 

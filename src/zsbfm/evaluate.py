@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import jax
 import jax.numpy as jnp
+import numpy as np
 
 from zsbfm.agents.base import Context
 from zsbfm.data.collect import behaviour_rollout, rollout
@@ -267,6 +268,16 @@ def score_draws(run, draws: int, split: str = "test", protocol: str | None = Non
         keys = jnp.stack([jax.random.PRNGKey(FRESH_DRAW_KEY + i) for i in range(1, draws)])
         scores.append(score(evaluate(run, key=keys, split=split, protocol=protocol, **kwargs)))
     return jnp.concatenate(scores)
+
+
+def standard_error(x, axis: int = 0):
+    """The standard error of the mean along `axis`: sample std (ddof 1) / sqrt(n); nan where
+    n = 1 (one draw or one seed says nothing of the spread)."""
+    x = np.asarray(x)
+    n = x.shape[axis]
+    if n < 2:
+        return np.full(np.mean(x, axis=axis).shape, np.nan)
+    return np.std(x, axis=axis, ddof=1) / np.sqrt(n)
 
 
 def _raw_keys(key):
