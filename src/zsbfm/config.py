@@ -236,13 +236,13 @@ class Config:
             bad("enc_beta", self.enc_beta, "enc_beta >= 0")
         if self.enc_contrast < 0:
             bad("enc_contrast", self.enc_contrast, "enc_contrast >= 0")
+        if self.enc_pool not in ENC_POOLS:
+            bad("enc_pool", self.enc_pool, f"one of {ENC_POOLS}")
         if not isinstance(self.enc_pool_width, int) or isinstance(self.enc_pool_width, bool) or self.enc_pool_width < 0:
             bad("enc_pool_width", self.enc_pool_width, "a non-negative integer (0: pool the token embedding itself)")
         if self.enc_pool_width and self.enc_pool != "max":
             bad("enc_pool_width", self.enc_pool_width,
                 f"0 with enc_pool={self.enc_pool!r} (a linear map before a mean folds into mu's own; use enc_pool='max')")
-        if self.enc_pool not in ENC_POOLS:
-            bad("enc_pool", self.enc_pool, f"one of {ENC_POOLS}")
         if self.enc_cell_tokens and not spec.cell_map:
             bad("enc_cell_tokens", self.enc_cell_tokens,
                 f"False for env={self.env!r} (it has no cell map of positions: EnvSpec.cell_map)")
