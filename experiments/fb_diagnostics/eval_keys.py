@@ -46,7 +46,7 @@ def main():
     means = {"train": [], "test": []}
     for i, path in enumerate(a.runs):
         encoder_of = a.encoder_of[i] if a.encoder_of else ""
-        print(f"{path}" + (f" with the encoder of {encoder_of}" if encoder_of else ""), flush=True)
+        print(path, flush=True)  # with_encoder_of names the encoder run
         run = zsbfm.load(path)
         if encoder_of:
             run = with_encoder_of(run, encoder_of)
