@@ -125,6 +125,20 @@ def test_invalid_lever_values_raise_naming_the_field(field, value, match):
         zsbfm.Config(**{field: value})
 
 
+@pytest.mark.parametrize("field", sorted(zsbfm.config.NONNEGATIVE_INTS))
+def test_nonnegative_int_fields_take_zero_and_reject_negatives_and_bools(field):
+    zsbfm.Config(**{field: 0})
+    for value in (-1, True, 1.5):  # True is an int to Python; it must not pass as 1
+        with pytest.raises(ValueError, match=f"Config.{field}={value!r} .*non-negative integer"):
+            zsbfm.Config(**{field: value})
+
+
+def test_positive_int_fields_reject_bools():
+    for field in ("steps", "expert_steps"):
+        with pytest.raises(ValueError, match=f"Config.{field}=True .*positive integer"):
+            zsbfm.Config(**{field: True})
+
+
 def test_exact_splus_needs_a_finite_state_env():
     with pytest.raises(ValueError, match="Config.splus='exact'"):
         zsbfm.Config.preset("pointmass", "fb", splus="exact")

@@ -28,6 +28,16 @@ ENVS = env_names()                     # the environments registered at import (
 SWEEPABLE = ("lr", "lr_B", "q_loss_coef", "tau", "gamma", "temperature", "ortho_coef", "z_mix", "clip_norm",
              "kappa", "enc_lr", "enc_beta", "feat_tau", "feat_gamma", "hilp_expectile",
              "hilp_p_traj_goal", "target_noise", "target_noise_clip")
+# Integer settings where 0 is allowed, with what 0 means (every other integer size is > 0).
+NONNEGATIVE_INTS = {"eval_every": "chunks; 0: evaluate only at the end",
+                    "enc_layers": "0: per-token embedding, then pooled",
+                    "h_dim": "0 means d",
+                    "enc_pool_width": "0: pool the token embedding itself"}
+
+
+def _is_int(v) -> bool:
+    """An int and not a bool (True would otherwise pass as 1)."""
+    return isinstance(v, int) and not isinstance(v, bool)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -185,8 +195,6 @@ class Config:
             bad("data_policy", self.data_policy, f"one of {DATA_POLICIES}")
         if self.expert_source not in EXPERT_SOURCES:
             bad("expert_source", self.expert_source, f"one of {EXPERT_SOURCES}")
-        if not isinstance(self.expert_steps, int) or self.expert_steps <= 0:
-            bad("expert_steps", self.expert_steps, "a positive integer")
         if self.expert_noise < 0:
             bad("expert_noise", self.expert_noise, "expert_noise >= 0")
         if spec.fixed_train and self.n_train_layouts != spec.n_train:
@@ -195,8 +203,6 @@ class Config:
         if spec.max_train is not None and self.n_train_layouts > spec.max_train:
             bad("n_train_layouts", self.n_train_layouts,
                 f"at most {spec.max_train} for {self.env} (the rest of its contexts are held out for test)")
-        if not isinstance(self.eval_every, int) or isinstance(self.eval_every, bool) or self.eval_every < 0:
-            bad("eval_every", self.eval_every, "a non-negative integer (chunks; 0: evaluate only at the end)")
         if self.on_nonfinite not in ON_NONFINITE:
             bad("on_nonfinite", self.on_nonfinite, f"one of {ON_NONFINITE}")
         if self.eval_protocols not in ("all", "official"):
@@ -220,14 +226,14 @@ class Config:
                   "context_len", "d", "f_pre_out", "batch_size", "steps", "chunk_steps",
                   "eval_episode_len", "enc_embed", "enc_heads", "enc_mlp",
                   "enc_steps", "enc_batch", "windows_per_episode", "splus_batch",
-                  "f_heads"):
+                  "f_heads", "expert_steps"):
             v = getattr(self, f)
-            if not isinstance(v, int) or isinstance(v, bool) or v <= 0:
+            if not _is_int(v) or v <= 0:
                 bad(f, v, "a positive integer")
-        if not isinstance(self.enc_layers, int) or isinstance(self.enc_layers, bool) or self.enc_layers < 0:
-            bad("enc_layers", self.enc_layers, "a non-negative integer (0: per-token embedding, then pooled)")
-        if not isinstance(self.h_dim, int) or self.h_dim < 0:
-            bad("h_dim", self.h_dim, "a non-negative integer (0 means d)")
+        for f, zero in NONNEGATIVE_INTS.items():
+            v = getattr(self, f)
+            if not _is_int(v) or v < 0:
+                bad(f, v, f"a non-negative integer ({zero})")
         if self.enc_embed % self.enc_heads:
             bad("enc_embed", self.enc_embed, f"a multiple of enc_heads={self.enc_heads}")
         if self.enc_lr <= 0:
@@ -238,8 +244,6 @@ class Config:
             bad("enc_contrast", self.enc_contrast, "enc_contrast >= 0")
         if self.enc_pool not in ENC_POOLS:
             bad("enc_pool", self.enc_pool, f"one of {ENC_POOLS}")
-        if not isinstance(self.enc_pool_width, int) or isinstance(self.enc_pool_width, bool) or self.enc_pool_width < 0:
-            bad("enc_pool_width", self.enc_pool_width, "a non-negative integer (0: pool the token embedding itself)")
         if self.enc_pool_width and self.enc_pool != "max":
             bad("enc_pool_width", self.enc_pool_width,
                 f"0 with enc_pool={self.enc_pool!r} (a linear map before a mean folds into mu's own; use enc_pool='max')")
