@@ -286,6 +286,36 @@ def test_h_train_true_trains_f_on_each_transitions_own_layout_walls():
     np.testing.assert_array_equal(np.asarray(h), walls[:, 1:-1, 1:-1].reshape(4, -1).astype(np.float32))
 
 
+def test_h_train_mask_hides_features_behind_the_mean_map_at_its_rate():
+    """h_train_mask=p: each feature is the true wall or, with probability p, the train layouts'
+    mean map; fresh keys hide other features."""
+    from zsbfm.data import collect
+    from zsbfm.data.samplers import Transitions
+
+    p = 0.3
+    cfg = zsbfm.Config.preset("fourrooms", "bfb", n_train_layouts=3, episodes_per_layout=2, h_from="context",
+                              h_train_true=True, h_train_mask=p)
+    env = zsbfm.make_env("fourrooms", n_train=3)
+    agent = make_agent(cfg, env)
+    ds = jax.jit(lambda k: collect(env, k, env.contexts("train"), 2))(jax.random.PRNGKey(0))
+    episode = jnp.tile(jnp.arange(6), 200)
+    batch = Transitions(obs=ds.obs[episode, 0], action=ds.action[episode, 0], next_obs=ds.obs[episode, 1],
+                        episode=episode, t=jnp.zeros_like(episode))
+    h = np.asarray(agent.train_context(None, ds, batch, jax.random.PRNGKey(1)))
+    walls = np.asarray(env.contexts("train").walls)[:, 1:-1, 1:-1].reshape(3, -1).astype(np.float32)
+    true, mean = walls[np.asarray(ds.context_id)[np.asarray(episode)]], walls.mean(0)
+    assert np.all((h == true) | (h == mean))
+    varying = true != mean  # where hiding shows
+    rate = ((h != true) & varying).sum() / varying.sum()
+    assert varying.sum() > 1000 and abs(rate - p) < 5 * np.sqrt(p * (1 - p) / varying.sum()), rate
+    h2 = np.asarray(agent.train_context(None, ds, batch, jax.random.PRNGKey(2)))
+    assert np.any(h2 != h)
+    with pytest.raises(ValueError, match="Config.h_train_mask=0.3 .*h_train_true=True"):
+        zsbfm.Config.preset("fourrooms", "bfb", h_from="context", h_train_mask=p)
+    with pytest.raises(ValueError, match=r"Config.h_train_mask=1.0 .*\[0, 1\)"):
+        zsbfm.Config.preset("fourrooms", "bfb", h_from="context", h_train_true=True, h_train_mask=1.0)
+
+
 @pytest.mark.parametrize("hidden, loss", [((), "mse"), pytest.param((64,), "bce", marks=pytest.mark.slow)])
 def test_h_from_context_predicts_the_wall_map_and_is_what_f_reads(hidden, loss):
     """h_from="context": a short pre-training makes c(mu) of fresh episodes predict their

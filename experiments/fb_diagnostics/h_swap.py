@@ -101,7 +101,8 @@ ENCODER_FIELDS = DATA_FIELDS | {
     "seed", "enc_embed", "enc_heads", "enc_layers", "enc_mlp", "pred_hidden", "enc_lr", "enc_beta",
     "enc_contrast", "enc_cell_tokens", "enc_pool", "enc_pool_width", "enc_steps", "enc_batch", "enc_target", "h_dim",
     "enc_context_coef", "context_head_hidden", "context_loss", "context_episodes",
-    "name", "steps", "eval_every", "chunk_steps"}
+    "name", "steps", "eval_every", "chunk_steps",
+    "h_train_mask"}  # F's training input only: evaluation never reads it, so F's run may differ there too
 
 
 def with_encoder_of(run, path: str):

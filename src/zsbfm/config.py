@@ -121,6 +121,7 @@ class Config:
     h_from: str = "mu"
     enc_context_coef: float = 1.0  # weight of that head's regression loss (h_from="context")
     h_train_true: bool = False   # h_from="context": F trains on the train layouts' true features (the walls oracle's h), c(mu) only at test
+    h_train_mask: float = 0.0    # h_train_true: each training feature is hidden (the train layouts' mean stands in) with this probability
     context_head_hidden: tuple[int, ...] = ()  # h_from="context": hidden ReLU layers of the head c; () = linear
     context_loss: str = "mse"    # h_from="context": the head's loss, "mse" | "bce" (0/1 features: c gives logits, h = sigmoid)
     enc_embed: int = 32          # transformer width
@@ -276,6 +277,10 @@ class Config:
                 f"'mse' for env={self.env!r} (its context features are not 0/1: EnvSpec.binary_context)")
         if self.h_train_true and self.h_from != "context":
             bad("h_train_true", self.h_train_true, "False unless h_from='context' (it replaces c(mu) in training)")
+        if not 0.0 <= self.h_train_mask < 1.0:
+            bad("h_train_mask", self.h_train_mask, "a probability in [0, 1)")
+        if self.h_train_mask and not self.h_train_true:
+            bad("h_train_mask", self.h_train_mask, "0 unless h_train_true=True (it hides part of the true features)")
         if not self.enc_context_coef >= 0:
             bad("enc_context_coef", self.enc_context_coef, "enc_context_coef >= 0")
         if self.algo == "rfb" and self.h_dim not in (0, self.d):

@@ -22,7 +22,10 @@ prediction of the unseen layout's walls from what the episode saw (least squares
 Config.context_head_hidden; with Config.context_loss="bce" (0/1 features) c gives logits l,
 the loss is the mean binary cross-entropy -k log sigmoid(l) - (1 - k) log sigmoid(-l), and
 h = sigmoid(l). With h_train_true, F trains on the true features k(layout) instead (the walls
-oracle's F) and is given c(mu) only at test time.
+oracle's F) and is given c(mu) only at test time; Config.h_train_mask = p hides each of
+those features with probability p (independently per transition and feature), putting the
+train layouts' mean feature in its place, so F also learns from maps as incomplete as a
+context's.
 
 Schedules (Config.encoder_mode):
   "staged" (default, the paper's): steps [0, enc_steps) train f_dyn only; at step
@@ -374,7 +377,11 @@ class BeliefFBAgent(FBAgent):
         """h of a context window from each transition's own episode (from the frozen table):
         its mean, or with Config.h_noise a draw mu + sigma eps, eps ~ N(0, I) per row."""
         if self.cfg.h_train_true:  # F learns from the exact features; c(mu) is its test-time input
-            return self.layout_features[dataset.context_id[batch.episode]]
+            k = self.layout_features[dataset.context_id[batch.episode]]
+            if self.cfg.h_train_mask:  # as a context that never saw a cell: the train layouts' mean
+                hide = jax.random.bernoulli(key, self.cfg.h_train_mask, k.shape)
+                k = jnp.where(hide, self.layout_features.mean(0), k)
+            return k
         w = jax.random.randint(key, batch.episode.shape, 0, self.num_windows)
         h = state.h_table[batch.episode, w]
         if self.cfg.h_noise:  # fold_in: the window draw keeps the key it always had
