@@ -377,10 +377,11 @@ class BeliefFBAgent(FBAgent):
         """h of a context window from each transition's own episode (from the frozen table):
         its mean, or with Config.h_noise a draw mu + sigma eps, eps ~ N(0, I) per row."""
         if self.cfg.h_train_true:  # F learns from the exact features; c(mu) is its test-time input
-            k = self.layout_features[dataset.context_id[batch.episode]]
+            features = self.layout_features  # a property that computes every layout's map: read once
+            k = features[dataset.context_id[batch.episode]]
             if self.cfg.h_train_mask:  # as a context that never saw a cell: the train layouts' mean
                 hide = jax.random.bernoulli(key, self.cfg.h_train_mask, k.shape)
-                k = jnp.where(hide, self.layout_features.mean(0), k)
+                k = jnp.where(hide, features.mean(0), k)
             return k
         w = jax.random.randint(key, batch.episode.shape, 0, self.num_windows)
         h = state.h_table[batch.episode, w]
