@@ -316,6 +316,40 @@ def test_h_train_mask_hides_features_behind_the_mean_map_at_its_rate():
         zsbfm.Config.preset("fourrooms", "bfb", h_from="context", h_train_true=True, h_train_mask=1.0)
 
 
+def test_context_target_revealed_is_the_map_where_the_window_shows_it_and_the_mean_elsewhere():
+    """context_target="revealed": the head's target is the true wall on the cells the window
+    entered or bumped into (env.revealed_features) and the train layouts' mean map elsewhere;
+    "map" is the true map; K-episode windows reveal the union of their episodes."""
+    from zsbfm.data import collect
+
+    env = zsbfm.make_env("fourrooms", n_train=3)
+    ds = jax.jit(lambda k: collect(env, k, env.contexts("train"), 4))(jax.random.PRNGKey(0))
+    walls = np.asarray(env.contexts("train").walls)[:, 1:-1, 1:-1].reshape(3, -1).astype(np.float32)
+    ctx = np.asarray(ds.context_id)
+    window = (ds.obs[:, :-1], ds.action, ds.obs[:, 1:])
+    seen = np.asarray(jax.vmap(env.revealed_features)(*window))
+    targets = {}
+    for target in ("map", "revealed"):
+        cfg = zsbfm.Config.preset("fourrooms", "bfb", n_train_layouts=3, episodes_per_layout=4,
+                                  h_from="context", context_target=target)
+        targets[target] = np.asarray(make_agent(cfg, env).context_target(window, jnp.asarray(ctx)))
+    np.testing.assert_array_equal(targets["map"], walls[ctx])
+    np.testing.assert_array_equal(targets["revealed"], np.where(seen, walls[ctx], walls.mean(0)))
+    assert (targets["revealed"] != targets["map"]).any()
+    # two episodes of one layout as one K = 2 window: the union of what each showed
+    cfg = zsbfm.Config.preset("fourrooms", "bfb", n_train_layouts=3, episodes_per_layout=4, h_from="context",
+                              context_target="revealed", context_episodes=2)
+    pair = tuple(x[None, :2] for x in window)                    # episodes 0 and 1: layout 0
+    got = np.asarray(make_agent(cfg, env).context_target(pair, jnp.asarray([ctx[0]])))[0]
+    np.testing.assert_array_equal(got, np.where(seen[0] | seen[1], walls[0], walls.mean(0)))
+    with pytest.raises(ValueError, match="Config.context_target='revealed' .*h_from='context'"):
+        zsbfm.Config.preset("fourrooms", "bfb", context_target="revealed")
+    with pytest.raises(ValueError, match="Config.context_target='seen' .*one of"):
+        zsbfm.Config.preset("fourrooms", "bfb", h_from="context", context_target="seen")
+    with pytest.raises(ValueError, match="Config.context_target='revealed' .*env='antwind'"):
+        zsbfm.Config.preset("antwind", "bfb", h_from="context", context_target="revealed")
+
+
 @pytest.mark.parametrize("hidden, loss", [((), "mse"), pytest.param((64,), "bce", marks=pytest.mark.slow)])
 def test_h_from_context_predicts_the_wall_map_and_is_what_f_reads(hidden, loss):
     """h_from="context": a short pre-training makes c(mu) of fresh episodes predict their

@@ -127,6 +127,29 @@ def test_step_matches_walls_under_vmap(name):
         states = nxt
 
 
+@pytest.mark.parametrize("name", ["doors", "fourrooms"])
+def test_revealed_features_are_the_cells_a_walk_entered_or_was_blocked_by(name):
+    """env.revealed_features of a random walk: the interior cells it stood on, and those a move
+    aimed at and the true wall map blocked, nothing else; batched walks, one map each."""
+    from zsbfm.data import collect
+
+    env = zsbfm.make_env(name, n_train=3)
+    ds = jax.jit(lambda k: collect(env, k, env.contexts("train"), 2))(jax.random.PRNGKey(0))
+    obs, act = np.asarray(ds.obs).astype(int), np.asarray(ds.action)
+    walls = np.asarray(env.contexts("train").walls)[np.asarray(ds.context_id)]
+    seen = np.asarray(jax.jit(jax.vmap(env.revealed_features))(ds.obs[:, :-1], ds.action, ds.obs[:, 1:]))
+    for e in range(obs.shape[0]):
+        expect = np.zeros(walls.shape[1:], bool)
+        for t, a in enumerate(act[e]):
+            (x, y), (dx, dy) = obs[e, t], DELTAS[int(a)]
+            expect[y, x] = True
+            if walls[e, y + dy, x + dx]:
+                expect[y + dy, x + dx] = True
+        expect[obs[e, -1, 1], obs[e, -1, 0]] = True
+        np.testing.assert_array_equal(seen[e], expect[1:-1, 1:-1].reshape(-1))
+        assert 0 < seen[e].sum() < seen[e].size
+
+
 def test_goal_reward_and_time_limit():
     env = zsbfm.make_env("fourrooms", n_train=5, episode_len=5)
     ctx = index_contexts(env.contexts("train"), 0)
@@ -198,7 +221,8 @@ def test_context_coverage_finds_the_doors_and_what_an_episode_reveals():
     walls = np.asarray(fourrooms_walls(jnp.asarray([c, r, du, dd, dl, dr])))
     assert sorted(doors(walls)) == sorted([(du, c), (dd, c), (r, dl), (r, dr)])
     assert sorted(doors(np.asarray(doors_walls(jnp.asarray([2, 6]))))) == [(2, 3), (6, 5)]
-    # from (1, 1): right to (2, 1), then up into the border (stays: reveals the wall (2, 0))
-    cells = np.array([[1, 1], [2, 1], [2, 1]])
-    seen = np.asarray(revealed(cells, np.array([3, 0]), walls.shape))
-    assert set(zip(*np.nonzero(seen))) == {(1, 1), (1, 2), (0, 2)}  # (y, x)
+    # from (1, 1): right to (2, 1), then up into the border (stays: the wall (2, 0), not
+    # shown: the border is a wall in every layout), then down to (2, 2)
+    cells = jnp.asarray([[1, 1], [2, 1], [2, 1], [2, 2]], jnp.float32)
+    seen = np.asarray(revealed(zsbfm.make_env("fourrooms"), cells, jnp.asarray([3, 0, 1])))
+    assert set(zip(*np.nonzero(seen))) == {(1, 1), (1, 2), (2, 2)}  # (y, x)

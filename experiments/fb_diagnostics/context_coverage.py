@@ -27,7 +27,6 @@ import numpy as np
 import zsbfm
 from zsbfm.config import Config
 from zsbfm.data import collect
-from zsbfm.envs.gridworld import ACTION_DELTAS
 
 
 def doors(walls: np.ndarray) -> list[tuple[int, int]]:
@@ -38,14 +37,12 @@ def doors(walls: np.ndarray) -> list[tuple[int, int]]:
     return [(y + 1, x + 1) for y, x in zip(*np.nonzero(~inner)) if wall_col[x] or wall_row[y]]
 
 
-def revealed(cells, actions, shape) -> jax.Array:
-    """bool[H, W]: the cells an episode visited (cells int[T+1, 2] as (x, y)) or bumped into
-    (a move, actions int[T], that left it in place). Jittable: h_swap.py builds h from it."""
-    cells = jnp.asarray(cells)
-    seen = jnp.zeros(shape, bool).at[cells[:, 1], cells[:, 0]].set(True)
-    stayed = jnp.all(cells[1:] == cells[:-1], axis=-1)
-    bumped = jnp.where(stayed[:, None], cells[:-1] + jnp.asarray(ACTION_DELTAS)[actions], cells[:-1])
-    return seen.at[bumped[:, 1], bumped[:, 0]].set(True)
+def revealed(env, obs, actions) -> jax.Array:
+    """bool[H, W]: the cells an episode (obs [T+1, 2] as (x, y), actions int[T]) visited or
+    bumped into (a move that left it in place), env.revealed_features on the whole grid (the
+    border, a wall in every layout, counted as not shown)."""
+    inner = env.revealed_features(obs[:-1], actions, obs[1:]).reshape(env.size - 2, env.size - 2)
+    return jnp.zeros((env.size, env.size), bool).at[1:-1, 1:-1].set(inner)
 
 
 def varying_cells(env) -> np.ndarray:
@@ -72,14 +69,13 @@ def coverage(env_name: str, episodes: int, seed: int, context_episodes=()) -> di
            "varying_cells": int(varies.sum())}
     for split, w in walls.items():
         ds = jax.jit(lambda k: collect(env, k, env.contexts(split), episodes))(jax.random.PRNGKey(seed))
-        cells = np.round(np.asarray(ds.obs)).astype(int)
-        acts, cid = np.asarray(ds.action), np.asarray(ds.context_id)
-        seen_all = np.asarray(jax.vmap(lambda c, a_: revealed(c, a_, varies.shape))(cells, acts))
+        cid = np.asarray(ds.context_id)
+        seen_all = np.asarray(jax.vmap(lambda o, a_: revealed(env, o, a_))(ds.obs, ds.action))
         out[split] = {"doors_per_layout": float(np.mean([len(doors(x)) for x in w])),
                       **door_stats(seen_all, w, cid),
                       "varying_cells_revealed": float(np.mean([s[varies].mean() for s in seen_all]))}
         r = out[split]
-        print(f"{env_name} {split} layouts ({len(cells)} episodes of {env.episode_len} steps): "
+        print(f"{env_name} {split} layouts ({len(cid)} episodes of {env.episode_len} steps): "
               f"{r['doors_per_layout']:.0f} doors; an episode passes {r['door_fraction_passed']:.2f} of them, "
               f"all of them in {r['episodes_passing_all_doors']:.2f} of episodes, none in "
               f"{r['episodes_passing_no_door']:.2f}; it reveals {r['varying_cells_revealed']:.2f} of the "

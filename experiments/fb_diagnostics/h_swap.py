@@ -37,7 +37,7 @@ from zsbfm.agents import make_agent
 from zsbfm.data.sources import make_env_for
 from zsbfm.evaluate import context_episode, protocol_score
 
-from context_coverage import revealed, varying_cells  # this script's folder is on sys.path
+from context_coverage import varying_cells  # this script's folder is on sys.path
 
 
 def with_context_h(agent, fn):
@@ -60,16 +60,11 @@ def rounded(agent, params, context):
 
 def revealed_map(agent, params, context):
     """What the context episode itself shows of the map: the true wall map on the cells it
-    entered or bumped into (context_coverage.revealed), the train layouts' mean map elsewhere
-    (the best an encoder of that episode could give cell by cell)."""
-    size = agent.env.size
-    cells = jnp.round(context.obs).astype(jnp.int32)
-    if cells.ndim == 3:  # K episodes: the union of what each revealed
-        seen = jax.vmap(lambda c, a: revealed(c, a, (size, size)))(cells, context.action).any(0)
-    else:
-        seen = revealed(cells, context.action, (size, size))
-    return jnp.where(seen[1:-1, 1:-1].reshape(-1), agent.env.context_features(context.layout),
-                     agent.layout_features.mean(0))
+    entered or bumped into (env.revealed_features; of K episodes, the union), the train
+    layouts' mean map elsewhere (the best an encoder of that episode could give cell by cell)."""
+    obs = context.obs
+    seen = agent.env.revealed_features(obs[..., :-1, :], context.action, obs[..., 1:, :])
+    return jnp.where(seen, agent.env.context_features(context.layout), agent.layout_features.mean(0))
 
 
 def per_layout(env, split: str, n: int, key, fn, batch: int = 20):
@@ -100,7 +95,7 @@ DATA_FIELDS = {"n_train_layouts", "episodes_per_layout"}
 ENCODER_FIELDS = DATA_FIELDS | {
     "seed", "enc_embed", "enc_heads", "enc_layers", "enc_mlp", "pred_hidden", "enc_lr", "enc_beta",
     "enc_contrast", "enc_cell_tokens", "enc_pool", "enc_pool_width", "enc_steps", "enc_batch", "enc_target", "h_dim",
-    "enc_context_coef", "context_head_hidden", "context_loss", "context_episodes",
+    "enc_context_coef", "context_head_hidden", "context_loss", "context_target", "context_episodes",
     "name", "steps", "eval_every", "chunk_steps",
     "h_train_mask"}  # F's training input only: evaluation never reads it, so F's run may differ there too
 

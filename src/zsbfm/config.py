@@ -18,7 +18,7 @@ import zsbfm.envs  # noqa: F401  (registers the built-in environments)
 from zsbfm.envs.registry import env_names, env_spec
 # the names of every choice live below config (zsbfm.names); re-exported here for callers
 from zsbfm.names import (ALGOS, BELIEF_ALGOS, DATA_POLICIES, ENCODER_MODES, EXPERT_SOURCES,  # noqa: F401
-                         CONTEXT_LOSSES, ENC_POOLS, F_ARCHS, H_FROM, OBS_ENCODINGS, ON_NONFINITE, RFB_Z_STATES, SIZES, SPLUS,
+                         CONTEXT_LOSSES, CONTEXT_TARGETS, ENC_POOLS, F_ARCHS, H_FROM, OBS_ENCODINGS, ON_NONFINITE, RFB_Z_STATES, SIZES, SPLUS,
                          TARGET_POLICIES, TWIN_TARGETS, algo_names)
 
 ENVS = env_names()                     # the environments registered at import (zsbfm.envs.registry)
@@ -124,6 +124,7 @@ class Config:
     h_train_mask: float = 0.0    # h_train_true: each training feature is hidden (the train layouts' mean stands in) with this probability
     context_head_hidden: tuple[int, ...] = ()  # h_from="context": hidden ReLU layers of the head c; () = linear
     context_loss: str = "mse"    # h_from="context": the head's loss, "mse" | "bce" (0/1 features: c gives logits, h = sigmoid)
+    context_target: str = "map"  # h_from="context": the head regresses on the layout's "map" | what the context "revealed" of it
     enc_embed: int = 32          # transformer width
     enc_heads: int = 4           # attention heads per block
     enc_layers: int = 2          # transformer blocks (0: a per-token MLP, then pooled)
@@ -275,6 +276,13 @@ class Config:
         if self.context_loss == "bce" and not spec.binary_context:
             bad("context_loss", self.context_loss,
                 f"'mse' for env={self.env!r} (its context features are not 0/1: EnvSpec.binary_context)")
+        if self.context_target not in CONTEXT_TARGETS:
+            bad("context_target", self.context_target, f"one of {CONTEXT_TARGETS}")
+        if self.context_target == "revealed" and self.h_from != "context":
+            bad("context_target", self.context_target, "'map' unless h_from='context' (it is the head's target)")
+        if self.context_target == "revealed" and not spec.revealed_context:
+            bad("context_target", self.context_target, f"'map' for env={self.env!r} (it does not say what a "
+                "context reveals of its features: EnvSpec.revealed_context)")
         if self.h_train_true and self.h_from != "context":
             bad("h_train_true", self.h_train_true, "False unless h_from='context' (it replaces c(mu) in training)")
         if not 0.0 <= self.h_train_mask < 1.0:

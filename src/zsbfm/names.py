@@ -20,6 +20,9 @@ ENCODER_MODES = ("staged", "joint")
 # what Belief-FB gives F as h: the encoder's mean "mu" | its prediction of the layout's "context" features
 H_FROM = ("mu", "context")
 CONTEXT_LOSSES = ("mse", "bce")  # the loss of Belief-FB's context head (agents/belief.py)
+# what that head regresses on: the layout's whole feature "map" | the features the context
+# "revealed" (the map where its transitions show it, the train layouts' mean elsewhere)
+CONTEXT_TARGETS = ("map", "revealed")
 ENC_POOLS = ("mean", "max")      # how the context encoder pools an episode's tokens (nets/encoder.py)
 TARGET_POLICIES = ("greedy", "boltzmann", "uniform")
 SPLUS = ("batch", "states", "exact")    # the s+ estimator of the FB loss (agents/fb.py)

@@ -25,7 +25,11 @@ h = sigmoid(l). With h_train_true, F trains on the true features k(layout) inste
 oracle's F) and is given c(mu) only at test time; Config.h_train_mask = p hides each of
 those features with probability p (independently per transition and feature), putting the
 train layouts' mean feature in its place, so F also learns from maps as incomplete as a
-context's.
+context's. With Config.context_target="revealed" the head's target is instead what the
+window itself shows of the layout: k(layout) on the features its transitions reveal
+(env.revealed_features: cells entered or bumped into), the train layouts' mean feature
+elsewhere. Recalling a train layout's unseen cells then earns nothing, so c can only learn
+to read evidence, which an unseen layout also has.
 
 Schedules (Config.encoder_mode):
   "staged" (default, the paper's): steps [0, enc_steps) train f_dyn only; at step
@@ -222,7 +226,8 @@ class BeliefFBAgent(FBAgent):
 
         With h_from="context", plus enc_context_coef * mean_{i,j} (c(mu_i) - k(context_i))_j^2,
         the head's regression on the window's layout features (module docstring), or with
-        context_loss="bce" their mean binary cross-entropy with c's logits.
+        context_loss="bce" their mean binary cross-entropy with c's logits; k is
+        `context_target`'s.
         """
         episodes = self.cfg.context_episodes > 1  # windows [n, K, L, ...]: g predicts all K * L
         mu, log_sigma = self.encode(enc, *window, episodes=episodes)
@@ -239,7 +244,7 @@ class BeliefFBAgent(FBAgent):
             loss = loss + self.cfg.enc_contrast * nce
             metrics["enc_nce"] = nce
         if self.cfg.h_from == "context":
-            out, target_k = self.context_head.apply(enc["context_head"], mu), self.layout_features[context]
+            out, target_k = self.context_head.apply(enc["context_head"], mu), self.context_target(window, context)
             pred = self.head_features(out)
             ctx_mse = jnp.mean((pred - target_k) ** 2)  # reported either way: comparable across losses
             if self.cfg.context_loss == "bce":
@@ -250,6 +255,17 @@ class BeliefFBAgent(FBAgent):
             loss = loss + self.cfg.enc_context_coef * ctx_loss
             metrics["enc_ctx_mse"] = ctx_mse
         return loss, (metrics, mu)
+
+    def context_target(self, window, context: Array) -> Array:
+        """What the head c regresses on for each window: [n, h_dim]. k(context) itself
+        (Config.context_target="map"), or with "revealed" k(context) where the window's
+        transitions (obs, action, next_obs) [n, (K,) L, ...] show it and the train layouts'
+        mean feature elsewhere (module docstring)."""
+        features = self.layout_features  # a property that computes every layout's map: read once
+        if self.cfg.context_target == "map":
+            return features[context]
+        seen = jax.vmap(self.env.revealed_features)(*window)
+        return jnp.where(seen, features[context], features.mean(0))
 
     def predictor_mse(self, enc, h: Array, obs: Array, action: Array, next_obs: Array) -> Array:
         """mean_{i,t} |g(s_it, a_it, h_i) - s'_it|^2 in normalised units (the paper's

@@ -230,6 +230,21 @@ class GridWorld(EnvBase):
         "walls" context; the border is the same in every layout)."""
         return ctx.walls[1:-1, 1:-1].reshape(-1).astype(jnp.float32)
 
+    def revealed_features(self, obs: Array, action: Array, next_obs: Array) -> Array:
+        """Which of `context_features` the transitions show: bool[(size - 2)^2]. obs, next_obs
+        [..., 2] as (x, y), action int[...]. A transition shows the cells it leaves and enters
+        (free) and, when a move left the agent in place, the cell it bumped into (a wall); of
+        the other cells it says nothing (Config.context_target="revealed")."""
+        cur = jnp.round(obs).astype(jnp.int32).reshape(-1, 2)
+        nxt = jnp.round(next_obs).astype(jnp.int32).reshape(-1, 2)
+        stayed = jnp.all(cur == nxt, -1, keepdims=True)
+        target = cur + jnp.asarray(ACTION_DELTAS)[jnp.asarray(action).astype(jnp.int32).reshape(-1)]
+        bumped = jnp.where(stayed, target, cur)  # a move that went through shows no more than cur
+        seen = jnp.zeros((self.size, self.size), bool)
+        for cell in (cur, nxt, bumped):
+            seen = seen.at[cell[:, 1], cell[:, 0]].set(True)
+        return seen[1:-1, 1:-1].reshape(-1)
+
     # -- contexts -----------------------------------------------------------------------
     def contexts(self, split: str) -> GridContext:
         """Stacked fixed layouts of a split: walls bool[n, H, W]."""
@@ -359,6 +374,7 @@ for _family in FAMILIES.values():
         name=_family.name,
         make=functools.partial(GridWorld, _family.name),
         episode_len=100, discrete=True, n_train=20, finite_states=True, binary_context=True, cell_map=True,
+        revealed_context=True,
         max_train=None if _family.max_layouts is None else _family.max_layouts - N_TEST_LAYOUTS,
         presets={"cpu": CPU_GRID, "long": LONG_GRID, "authors": AUTHORS_GRID,
                  "paper": dict(n_train_layouts=20, episodes_per_layout=500, **PAPER_DISCRETE)},

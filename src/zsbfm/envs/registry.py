@@ -28,6 +28,7 @@ class EnvSpec:
     expert_behaviour: bool = False    # its data comes from a trained expert (zsbfm.data.expert; Config.data_policy)
     cell_map: bool = False            # positions fall in a map of cells: env.cell_index(obs), env.n_cells
     binary_context: bool = False      # env.context_features are 0/1 (a wall map): Config.context_loss="bce"
+    revealed_context: bool = False    # env.revealed_features(obs, action, next_obs): Config.context_target="revealed"
     shares_data: bool = False         # one dataset, recorded once and cached, for every seed (zsbfm.data.sources)
     presets: dict = dataclasses.field(default_factory=dict)         # size -> Config overrides
     belief_presets: dict = dataclasses.field(default_factory=dict)  # size -> bfb / rfb overrides
