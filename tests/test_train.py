@@ -3,6 +3,7 @@
 import dataclasses
 import json
 import os
+import shutil
 import signal
 
 import jax
@@ -90,6 +91,59 @@ def test_interrupted_run_resumes_to_the_same_result(tiny_run, tmp_path):
     for a, b in zip(leaves(run.params), leaves(resumed.params)):
         np.testing.assert_array_equal(a, b)
     assert [r["fb_loss"] for r in resumed.metrics] == [r["fb_loss"] for r in run.metrics]
+
+
+@pytest.fixture(scope="module")
+def encoder_reuse(tmp_path_factory):
+    """A tiny staged Belief-FB encoder run (2 encoder chunks, 1 FB chunk), and a run with
+    h_train_true and more steps started from its encoder phase (train(encoder_from=))."""
+    tmp = tmp_path_factory.mktemp("reuse")
+    base = tiny_config(tmp, algo="bfb", num_seeds=1, h_from="context", enc_steps=20, steps=30, name="enc")
+    enc = zsbfm.train(base, progress=False)
+    cfg = dataclasses.replace(base, name="f", h_train_true=True, steps=40)
+    return enc, zsbfm.train(cfg, progress=False, encoder_from=str(tmp / "runs" / "enc")), tmp
+
+
+def test_encoder_from_copies_the_encoder_phase_and_resumes_after_it(encoder_reuse):
+    """The run starts at the end of the encoder run's encoder phase (chunk 2): its metrics rows
+    up to there are the encoder run's, and its encoder is the encoder run's (frozen after)."""
+    enc, reused, _ = encoder_reuse
+    assert reused.results["resumed_from_chunk"] == 2 and len(reused.metrics) == 4
+    assert reused.metrics[:2] == enc.metrics[:2]
+    for a, b in zip(leaves(enc.params.enc), leaves(reused.params.enc)):
+        np.testing.assert_array_equal(a, b)
+    assert any(np.any(a != b) for a, b in zip(leaves(enc.params.F), leaves(reused.params.F)))
+
+
+@pytest.mark.slow
+def test_encoder_from_equals_the_run_trained_from_scratch(encoder_reuse):
+    """The run started from the encoder phase and the same config trained from scratch end
+    with the same parameters, metrics and scores."""
+    _, reused, _ = encoder_reuse
+    scratch = zsbfm.train(dataclasses.replace(reused.cfg, name="scratch"), progress=False)
+    assert scratch.results["resumed_from_chunk"] == 0
+    for a, b in zip(leaves(reused.params), leaves(scratch.params)):
+        np.testing.assert_array_equal(a, b)
+    for key in ("enc_mse", "fb_loss"):
+        assert [r.get(key) for r in reused.metrics] == [r.get(key) for r in scratch.metrics]
+    assert reused.results["test"] == scratch.results["test"]
+
+
+def test_encoder_from_refuses_another_encoder_phase_before_writing(encoder_reuse):
+    """Another learning rate, no run, a non-belief run, or no checkpoint at the end of the
+    encoder phase: a ValueError that names it, and no run directory."""
+    _, reused, tmp = encoder_reuse
+    enc_dir, cfg = str(tmp / "runs" / "enc"), dataclasses.replace(reused.cfg, name="other")
+    with pytest.raises(ValueError, match=r"encoder_from=.*'lr': \(0.0003, 0.001\)"):
+        zsbfm.train(dataclasses.replace(cfg, lr=1e-3), progress=False, encoder_from=enc_dir)
+    with pytest.raises(ValueError, match="encoder_from=.*no run there"):
+        zsbfm.train(cfg, progress=False, encoder_from=str(tmp / "none"))
+    with pytest.raises(ValueError, match=r"encoder_from=.*needs a staged belief run"):
+        zsbfm.train(tiny_config(tmp, name="other"), progress=False, encoder_from=enc_dir)
+    shutil.rmtree(os.path.join(enc_dir, "checkpoints", "2"))
+    with pytest.raises(ValueError, match=r"no checkpoint at chunk 2, .* keeps \[3\]"):
+        zsbfm.train(cfg, progress=False, encoder_from=enc_dir)
+    assert not os.path.exists(tmp / "runs" / "other")
 
 
 def test_other_config_in_same_directory_is_refused(tiny_run):

@@ -60,7 +60,7 @@ def _with_names(fn):
 def train(env: str = "fourrooms", algo: str = "fb", seeds: int = 3, size: str = "cpu",
           name: str = "", runs_dir: str = "runs", resume: bool = True, dataset: str = "",
           set: tuple[str, ...] = (), log: tuple[str, ...] = (), coordinator: str = "",
-          num_processes: int = 0, process_id: int = -1) -> None:
+          num_processes: int = 0, process_id: int = -1, encoder_from: str = "") -> None:
     """Train all seeds of a preset together (vmapped), evaluate on train and test layouts.
 
     Args:
@@ -80,6 +80,9 @@ def train(env: str = "fourrooms", algo: str = "fb", seeds: int = 3, size: str = 
             run the same command on every host with its own --process-id.
         num_processes: multi-process run: number of processes (default $JAX_NUM_PROCESSES).
         process_id: multi-process run: this process's index, 0..num_processes-1 (default $JAX_PROCESS_ID).
+        encoder_from: a finished belief run (runs/<name>) whose config differs only in fields the
+            encoder phase never reads (h_train_true, steps, ...): start from the end of its
+            encoder phase instead of redoing it (the same run, bit for bit).
     """
     init_distributed(coordinator, num_processes, process_id)  # before anything touches a device
     from zsbfm.config import Config
@@ -92,7 +95,7 @@ def train(env: str = "fourrooms", algo: str = "fb", seeds: int = 3, size: str = 
     import jax
 
     with _loggers(log, cfg) as loggers:
-        run = run_train(cfg, resume=resume, callback=as_callback(loggers))
+        run = run_train(cfg, resume=resume, callback=as_callback(loggers), encoder_from=encoder_from)
     if jax.process_index() == 0:
         _print_results(run)
 

@@ -44,6 +44,7 @@ from zsbfm.data.collect import collect
 from zsbfm.data.samplers import DATA_AXIS
 from zsbfm.data.sources import shared_dataset
 from zsbfm.data.sources import make_env_for
+from zsbfm.encoder_reuse import encoder_checkpoint, seed_from_encoder_run
 from zsbfm.evaluate import (default_goals, evaluate_params, evaluate_protocol, metric_of, protocol_score,
                             protocols_of, reward_states, split_results)
 from zsbfm.interrupt import StopSignals
@@ -450,7 +451,7 @@ def run_loop(trainer: Trainer, run_dir: str, keys, hp: dict, resume: bool, progr
 
 
 def train(cfg: Config, resume: bool = True, progress: bool = True,
-          callback: Callable[[int, dict], None] | None = None) -> Run:
+          callback: Callable[[int, dict], None] | None = None, encoder_from: str = "") -> Run:
     """Train every seed of `cfg` together (jax.vmap), evaluate, save and return a `Run`.
 
     resume:   continue from the newest checkpoint in runs/<name>/ if it was written by
@@ -462,6 +463,10 @@ def train(cfg: Config, resume: bool = True, progress: bool = True,
               chunk's phase: [per seed]} and, when the chunk was evaluated (eval_every),
               "eval/<split>/<protocol>": [per seed] and "flops" (cumulative, per seed);
               "dropped": [seeds] once a seed was dropped (zsbfm.loggers builds on it).
+    encoder_from: a finished run's directory whose config differs from cfg only in fields the
+              encoder phase never reads (zsbfm.encoder_reuse.FB_PHASE_FIELDS, e.g. h_train_true,
+              steps): a new run starts from the end of its encoder phase instead of redoing it,
+              and equals the run trained from scratch (belief methods, encoder_mode="staged").
 
     The run holds its directory (zsbfm.lock: a second writer gets RunLocked); SIGINT and
     SIGTERM stop it at the next chunk boundary with `Interrupted` (zsbfm.interrupt); a
@@ -475,8 +480,13 @@ def train(cfg: Config, resume: bool = True, progress: bool = True,
     """
     primary = jax.process_index() == 0
     run_dir = os.path.abspath(os.path.join(cfg.runs_dir, cfg.run_name))
+    encoder = encoder_checkpoint(cfg, encoder_from) if encoder_from else None  # before anything compiles
     with RunDirLock(run_dir) if primary else contextlib.nullcontext():
         run_dir = prepare_run_dir(cfg, resume)
+        if encoder is not None:
+            if primary:
+                seed_from_encoder_run(run_dir, encoder_from, *encoder)
+            _barrier("zsbfm: encoder phase copied")
         trainer = make_train(cfg, progress and primary)
         with StopSignals() as stop:  # from here to the saved run, a signal waits for a chunk boundary
             loop = run_loop(trainer, run_dir, seed_keys(cfg), {}, resume, progress, callback, stop=stop)
