@@ -94,34 +94,41 @@ def test_interrupted_run_resumes_to_the_same_result(tiny_run, tmp_path):
 
 
 @pytest.fixture(scope="module")
-def encoder_reuse(tmp_path_factory):
-    """A tiny staged Belief-FB encoder run (2 encoder chunks, 1 FB chunk), and a run with
-    h_train_true and more steps started from its encoder phase (train(encoder_from=))."""
+def encoder_run(tmp_path_factory):
+    """A tiny staged Belief-FB encoder run (2 encoder chunks, 1 FB chunk) and the config of a
+    run that may start from it: h_train_true and more steps (FB-phase fields)."""
     tmp = tmp_path_factory.mktemp("reuse")
     base = tiny_config(tmp, algo="bfb", num_seeds=1, h_from="context", enc_steps=20, steps=30, name="enc")
     enc = zsbfm.train(base, progress=False)
-    cfg = dataclasses.replace(base, name="f", h_train_true=True, steps=40)
-    return enc, zsbfm.train(cfg, progress=False, encoder_from=str(tmp / "runs" / "enc")), tmp
+    return enc, dataclasses.replace(base, name="f", h_train_true=True, steps=40), tmp
 
 
-def test_encoder_from_copies_the_encoder_phase_and_resumes_after_it(encoder_reuse):
-    """The run starts at the end of the encoder run's encoder phase (chunk 2): its metrics rows
-    up to there are the encoder run's, and its encoder is the encoder run's (frozen after)."""
-    enc, reused, _ = encoder_reuse
-    assert reused.results["resumed_from_chunk"] == 2 and len(reused.metrics) == 4
-    assert reused.metrics[:2] == enc.metrics[:2]
-    for a, b in zip(leaves(enc.params.enc), leaves(reused.params.enc)):
-        np.testing.assert_array_equal(a, b)
-    assert any(np.any(a != b) for a, b in zip(leaves(enc.params.F), leaves(reused.params.F)))
+def test_encoder_from_copies_the_end_of_the_encoder_phase(encoder_run, tmp_path):
+    """encoder_checkpoint finds chunk 2 (enc_steps / chunk_steps) of the encoder run;
+    seed_from_encoder_run copies its checkpoint and the metrics rows up to it, once."""
+    from zsbfm.encoder_reuse import encoder_checkpoint, seed_from_encoder_run
+
+    enc, cfg, tmp = encoder_run
+    enc_dir = str(tmp / "runs" / "enc")
+    folder, chunk = encoder_checkpoint(cfg, enc_dir)
+    assert (folder, chunk) == (os.path.join(enc_dir, "checkpoints", "2"), 2)
+    assert seed_from_encoder_run(str(tmp_path), enc_dir, folder, chunk)
+    assert os.listdir(tmp_path / "checkpoints") == ["2"]
+    assert sorted(os.listdir(tmp_path / "checkpoints" / "2")) == sorted(os.listdir(folder))
+    with open(tmp_path / "metrics.jsonl") as f:
+        assert [json.loads(line) for line in f] == enc.metrics[:2]
+    assert not seed_from_encoder_run(str(tmp_path), enc_dir, folder, chunk)  # it has a checkpoint now
 
 
 @pytest.mark.slow
-def test_encoder_from_equals_the_run_trained_from_scratch(encoder_reuse):
-    """The run started from the encoder phase and the same config trained from scratch end
-    with the same parameters, metrics and scores."""
-    _, reused, _ = encoder_reuse
-    scratch = zsbfm.train(dataclasses.replace(reused.cfg, name="scratch"), progress=False)
-    assert scratch.results["resumed_from_chunk"] == 0
+def test_encoder_from_equals_the_run_trained_from_scratch(encoder_run):
+    """A run started from the encoder run's encoder phase (train(encoder_from=)) and the same
+    config trained from scratch end with the same parameters, metrics and scores."""
+    enc, cfg, tmp = encoder_run
+    reused = zsbfm.train(cfg, progress=False, encoder_from=str(tmp / "runs" / "enc"))
+    scratch = zsbfm.train(dataclasses.replace(cfg, name="scratch"), progress=False)
+    assert reused.results["resumed_from_chunk"] == 2 and scratch.results["resumed_from_chunk"] == 0
+    assert reused.metrics[:2] == enc.metrics[:2]
     for a, b in zip(leaves(reused.params), leaves(scratch.params)):
         np.testing.assert_array_equal(a, b)
     for key in ("enc_mse", "fb_loss"):
@@ -129,20 +136,22 @@ def test_encoder_from_equals_the_run_trained_from_scratch(encoder_reuse):
     assert reused.results["test"] == scratch.results["test"]
 
 
-def test_encoder_from_refuses_another_encoder_phase_before_writing(encoder_reuse):
+def test_encoder_from_refuses_another_encoder_phase_before_writing(encoder_run, tmp_path):
     """Another learning rate, no run, a non-belief run, or no checkpoint at the end of the
     encoder phase: a ValueError that names it, and no run directory."""
-    _, reused, tmp = encoder_reuse
-    enc_dir, cfg = str(tmp / "runs" / "enc"), dataclasses.replace(reused.cfg, name="other")
+    _, cfg, tmp = encoder_run
+    enc_dir, cfg = str(tmp / "runs" / "enc"), dataclasses.replace(cfg, name="other")
     with pytest.raises(ValueError, match=r"encoder_from=.*'lr': \(0.0003, 0.001\)"):
         zsbfm.train(dataclasses.replace(cfg, lr=1e-3), progress=False, encoder_from=enc_dir)
     with pytest.raises(ValueError, match="encoder_from=.*no run there"):
         zsbfm.train(cfg, progress=False, encoder_from=str(tmp / "none"))
     with pytest.raises(ValueError, match=r"encoder_from=.*needs a staged belief run"):
         zsbfm.train(tiny_config(tmp, name="other"), progress=False, encoder_from=enc_dir)
-    shutil.rmtree(os.path.join(enc_dir, "checkpoints", "2"))
+    pruned = str(tmp_path / "pruned")  # a copy: the module's encoder run stays whole
+    shutil.copytree(enc_dir, pruned)
+    shutil.rmtree(os.path.join(pruned, "checkpoints", "2"))
     with pytest.raises(ValueError, match=r"no checkpoint at chunk 2, .* keeps \[3\]"):
-        zsbfm.train(cfg, progress=False, encoder_from=enc_dir)
+        zsbfm.train(cfg, progress=False, encoder_from=pruned)
     assert not os.path.exists(tmp / "runs" / "other")
 
 
