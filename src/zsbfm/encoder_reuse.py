@@ -17,7 +17,8 @@ import json
 import os
 import shutil
 
-from zsbfm.config import Config
+from zsbfm.config import BELIEF_ALGOS, Config
+from zsbfm.run import read_metrics
 
 # Fields the encoder phase never reads: where they differ the state at its end is the same.
 FB_PHASE_FIELDS = ("name", "runs_dir", "steps", "eval_every", "h_train_true", "h_train_mask",
@@ -28,8 +29,8 @@ def encoder_checkpoint(cfg: Config, encoder_run: str) -> tuple[str, int]:
     """(the encoder run's checkpoint folder at the end of its encoder phase, that chunk), after
     checking that `cfg` may start from it; a ValueError naming what is wrong otherwise. Reads
     files only: call it before anything compiles."""
-    if cfg.algo not in ("bfb", "rfb") or cfg.encoder_mode != "staged":
-        raise ValueError(f"encoder_from={encoder_run!r} needs a staged belief run (algo 'bfb' or 'rfb', "
+    if cfg.algo not in BELIEF_ALGOS or cfg.encoder_mode != "staged":
+        raise ValueError(f"encoder_from={encoder_run!r} needs a staged belief run (algo one of {BELIEF_ALGOS}, "
                          f"encoder_mode='staged'), got algo={cfg.algo!r}, encoder_mode={cfg.encoder_mode!r}")
     if not cfg.checkpoint:
         raise ValueError(f"encoder_from={encoder_run!r} needs checkpoint=True (the run starts from a checkpoint)")
@@ -62,8 +63,6 @@ def seed_from_encoder_run(run_dir: str, encoder_run: str, folder: str, chunk: in
     if os.path.isdir(ckpts) and any(c.isdigit() for c in os.listdir(ckpts)):
         return False
     shutil.copytree(folder, os.path.join(ckpts, str(chunk)))
-    with open(os.path.join(encoder_run, "metrics.jsonl")) as f:
-        rows = [line for line in f if line.strip() and json.loads(line)["chunk"] <= chunk]
     with open(os.path.join(run_dir, "metrics.jsonl"), "w") as f:
-        f.writelines(rows)
+        f.writelines(json.dumps(row, allow_nan=False) + "\n" for row in read_metrics(encoder_run, chunk))
     return True

@@ -87,6 +87,22 @@ def abstract_params(cfg: Config):
     return jax.eval_shape(lambda k: jax.vmap(lambda kk: agent.eval_params(agent.init(kk)))(k), keys)
 
 
+def read_metrics(run_dir: str, upto_chunk: int) -> list[dict]:
+    """The metrics.jsonl rows of run_dir's chunks up to `upto_chunk` ([] without the file);
+    a last line cut short by a hard kill ends the read (its chunk is redone on resume)."""
+    path = os.path.join(run_dir, "metrics.jsonl")
+    if not os.path.exists(path):
+        return []
+    rows = []
+    with open(path) as f:
+        for line in f:
+            try:
+                rows.append(json.loads(line))
+            except json.JSONDecodeError:
+                break
+    return [r for r in rows if r["chunk"] <= upto_chunk]
+
+
 def load(path: str) -> Run:
     """Load a run saved by `Run.save` (or written by `zsbfm.train`)."""
     path = os.path.abspath(path)

@@ -51,7 +51,7 @@ from zsbfm.interrupt import StopSignals
 from zsbfm.keys import eval_key, seed_keys  # noqa: F401  (zsbfm.train.seed_keys: the seeds' keys)
 from zsbfm.lock import LOCK_NAME, RunDirLock
 from zsbfm.nonfinite import NonFiniteError, all_finite, describe, keep_finite
-from zsbfm.run import Run, jsonable, write_text
+from zsbfm.run import Run, jsonable, read_metrics, write_text
 
 
 @struct.dataclass
@@ -250,20 +250,6 @@ def _checkpoint_manager(run_dir: str) -> ocp.CheckpointManager:
                                  options=ocp.CheckpointManagerOptions(max_to_keep=2))
 
 
-def _read_metrics(run_dir: str, upto_chunk: int) -> list[dict]:
-    path = os.path.join(run_dir, "metrics.jsonl")
-    if not os.path.exists(path):
-        return []
-    rows = []
-    with open(path) as f:
-        for line in f:
-            try:
-                rows.append(json.loads(line))
-            except json.JSONDecodeError:  # a line cut short by a hard kill: its chunk is redone
-                break
-    return [r for r in rows if r["chunk"] <= upto_chunk]
-
-
 def update_flops(trainer: Trainer, carry, dataset, hp) -> Callable[[int], float]:
     """Cumulative FLOPs of one seed row after `step` updates, from XLA's cost analysis of
     one compiled update of the same program (compiled here; nothing runs): updates before
@@ -376,7 +362,7 @@ def run_loop(trainer: Trainer, run_dir: str, keys, hp: dict, resume: bool, progr
     if mngr is not None and resume and mngr.latest_step() is not None:
         start = mngr.latest_step()
         carry = mngr.restore(start, args=ocp.args.StandardRestore(carry))
-    metrics = _read_metrics(run_dir, start)
+    metrics = read_metrics(run_dir, start)
     elapsed0 = metrics[-1].get("wall_s", 0.0) if metrics else 0.0
     dropped: dict[int, int] = {}  # row -> the chunk it was dropped at, read back on resume
     for r in metrics:
