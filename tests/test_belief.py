@@ -96,9 +96,10 @@ def test_encoder_ignores_padding(encoder):
     assert not np.allclose(np.asarray(mu), np.asarray(mu_other), atol=1e-3)
 
 
-@pytest.mark.parametrize("pool, pool_width", [("mean", 0), ("max", 0), ("max", 40)])
+@pytest.mark.parametrize("pool, pool_width", [("mean", 0), ("max", 0), ("max", 40), ("cells", 0), ("cells", 3)])
 def test_pooling_is_permutation_invariant_and_ignores_padding(pool, pool_width):
-    net = ContextEncoder(h_dim=6, embed=16, heads=2, layers=2, mlp=32, pool=pool, pool_width=pool_width)
+    net = ContextEncoder(h_dim=6, embed=16, heads=2, layers=2, mlp=32, pool=pool, pool_width=pool_width,
+                         cells=5 if pool == "cells" else 0)
     tokens = jax.random.normal(jax.random.PRNGKey(0), (3, 12, 9))
     params = net.init(jax.random.PRNGKey(1), tokens, jnp.ones((3, 12), bool))
     mu, _ = net.apply(params, tokens, jnp.ones((3, 12), bool))
@@ -144,6 +145,59 @@ def test_pool_width_maps_each_token_to_that_many_channels_before_the_max():
     mu = pooled @ p["mu"]["kernel"] + p["mu"]["bias"]
     np.testing.assert_allclose(np.asarray(net.apply(params, tokens, jnp.ones((2, 7), bool))[0]),
                                np.asarray(mu), rtol=1e-4, atol=1e-4)
+
+
+def test_cell_pool_is_softmax_attention_of_one_query_per_cell_over_the_tokens_and_a_null_token():
+    """pool="cells", one head, no blocks: feature c of the pooled vector is
+    W_o sum_j softmax_j(<W_q q_c + b_q, W_k x_j + b_k> / sqrt(E)) (W_v x_j + b_v) + b_o, j over
+    the unmasked tokens x_j = LN(E tok_j) and the null token n, computed here by hand; a
+    context with no unmasked token reads n alone, whatever its tokens."""
+    E, C, P = 16, 5, 3
+    tokens = jax.random.normal(jax.random.PRNGKey(0), (2, 7, 9))
+    mask = jnp.asarray([[True] * 7, [True] * 4 + [False] * 3])
+    net = ContextEncoder(h_dim=6, embed=E, heads=1, layers=0, mlp=32, pool="cells", pool_width=P, cells=C)
+    params = net.init(jax.random.PRNGKey(1), tokens, mask)
+    p = params["params"]
+    cp, att = p["CellPool_0"], p["CellPool_0"]["MultiHeadDotProductAttention_0"]
+    x = tokens @ p["Dense_0"]["kernel"] + p["Dense_0"]["bias"]
+    x = (x - x.mean(-1, keepdims=True)) / jnp.sqrt(x.var(-1, keepdims=True) + 1e-6)
+    x = x * p["LayerNorm_0"]["scale"] + p["LayerNorm_0"]["bias"]
+    proj = lambda name, v: v @ att[name]["kernel"][:, 0] + att[name]["bias"][0]
+    expected = []
+    for i in range(2):
+        kv = np.concatenate([np.asarray(x[i])[np.asarray(mask[i])], np.asarray(cp["null"])], 0)
+        logits = np.asarray(proj("query", cp["queries"]) @ proj("key", kv).T) / np.sqrt(E)   # [C, M + 1]
+        w = np.exp(logits - logits.max(1, keepdims=True))
+        w /= w.sum(1, keepdims=True)
+        y = (w @ np.asarray(proj("value", kv))) @ np.asarray(att["out"]["kernel"][0]) + np.asarray(att["out"]["bias"])
+        y = y @ np.asarray(cp["cell_out"]["kernel"]) + np.asarray(cp["cell_out"]["bias"])      # [C, P]
+        expected.append(y.reshape(-1) @ np.asarray(p["mu"]["kernel"]) + np.asarray(p["mu"]["bias"]))
+    np.testing.assert_allclose(np.asarray(net.apply(params, tokens, mask)[0]), np.stack(expected),
+                               rtol=1e-4, atol=1e-4)
+    empty = jnp.zeros((2, 7), bool)
+    a, b = (np.asarray(net.apply(params, t, empty)[0]) for t in (tokens, -3.0 * tokens))
+    assert np.isfinite(a).all()
+    np.testing.assert_allclose(a, b, atol=1e-6)
+    np.testing.assert_allclose(a[0], a[1], atol=1e-6)
+
+
+def test_cell_pooling_reads_every_episode_of_a_context_at_once():
+    """pool="cells" with an episode axis attends over all K * N tokens in one pool: with no
+    blocks (no attention within an episode) it equals the flattened context; with blocks it is
+    invariant to the episodes' order and not the first episode's alone."""
+    tokens = jax.random.normal(jax.random.PRNGKey(0), (2, 3, 7, 9))              # [B, K, N, in]
+    mask = jnp.ones((2, 3, 7), bool).at[:, 2, 4:].set(False)
+    for layers in (0, 2):
+        net = ContextEncoder(h_dim=6, embed=16, heads=2, layers=layers, mlp=32, pool="cells", cells=4)
+        params = net.init(jax.random.PRNGKey(1), tokens, mask, True)
+        mu = np.asarray(net.apply(params, tokens, mask, True)[0])
+        if layers == 0:
+            flat = np.asarray(net.apply(params, tokens.reshape(2, 21, 9), mask.reshape(2, 21))[0])
+            np.testing.assert_allclose(mu, flat, atol=1e-5)
+        reordered = net.apply(params, tokens[:, ::-1], mask[:, ::-1], True)[0]
+        np.testing.assert_allclose(np.asarray(reordered), mu, atol=1e-5)
+        first = np.asarray(net.apply(params, tokens[:, :1], mask[:, :1], True)[0])
+        assert not np.allclose(first, mu, atol=1e-3)
 
 
 def test_discrete_actions_enter_the_encoder_one_hot():
@@ -206,6 +260,7 @@ def test_h_from_context_is_belief_fbs_staged_mean_only(bad):
     (dict(enc_pool="sum"), "Config.enc_pool='sum'"),
     (dict(enc_pool_width=-1), "Config.enc_pool_width=-1"),
     (dict(enc_pool_width=64), "Config.enc_pool_width=64"),
+    (dict(env="antwind", enc_pool="cells"), "Config.enc_pool='cells' .*cell map"),
 ])
 def test_h_from_settings_are_checked(fields, message):
     fields = dict(fields)

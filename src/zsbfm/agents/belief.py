@@ -104,7 +104,7 @@ class BeliefFBAgent(FBAgent):
     def encoder_net(self) -> ContextEncoder:
         c = self.cfg
         return ContextEncoder(self.mu_dim, c.enc_embed, c.enc_heads, c.enc_layers, c.enc_mlp, c.enc_pool,
-                              c.enc_pool_width)
+                              c.enc_pool_width, cells=self.env.n_cells if c.enc_pool == "cells" else 0)
 
     @property
     def context_head(self) -> nn.Module:

@@ -10,7 +10,10 @@ bumped into). Either way the output is invariant to the order of the transitions
 and unaffected by padding. A context of several episodes (Config.context_episodes) is
 encoded episode by episode (attention within each) and the pooled features are combined by
 an elementwise max over episodes: a feature that any episode shows (a door it passed), the
-context shows; invariant to the episodes' order. It returns a diagonal Gaussian
+context shows; invariant to the episodes' order. With pool="cells" (map envs) the pool is by
+cell instead: one learned query per map cell attends over every token of the context (all K
+episodes at once) and a learned null token (`CellPool`), so each cell's features are read from
+the transitions that bear on it, wherever in the layout they are. It returns a diagonal Gaussian
 q(h | episode) = N(mu, diag(exp(log_sigma))^2). Everything runs in float32.
 
 g(s_t, a_t, h) regresses s_{t+1}: predicting the next state needs the layout, so h must
@@ -46,6 +49,39 @@ class EncoderBlock(nn.Module):
         return x + y
 
 
+class CellPool(nn.Module):
+    """Attention pooling by map cell: x [..., M, E], mask bool[..., M] -> [..., C * P].
+
+    Pooling by multihead attention (the Set Transformer's PMA, Lee et al. 2019) with C learned
+    seed queries q_c, one per map cell, over the M unmasked tokens plus one learned null token
+    n (always attended, so a cell no transition bears on reads n's value rather than an
+    average of unrelated tokens, and an all-masked input is defined):
+        y_c = sum_j softmax_j(<W_q q_c, W_k x_j> / sqrt(E / heads)) W_v x_j,  j over tokens and n,
+    per head, then W_o. Each y_c is mapped by one Dense shared by all cells to P channels
+    (P = width; 0 keeps E) and the C x P features are flattened. A cell's features depend on
+    the tokens only through attention weights, so they are invariant to the tokens' order and
+    unaffected by masked ones; the query, not the layout, says which cell they describe.
+    """
+
+    cells: int
+    heads: int
+    width: int = 0
+
+    @nn.compact
+    def __call__(self, x, mask):
+        batch, E = x.shape[:-2], x.shape[-1]
+        null = self.param("null", nn.initializers.normal(1.0), (1, E))
+        queries = self.param("queries", nn.initializers.normal(1.0), (self.cells, E))
+        kv = jnp.concatenate([x, jnp.broadcast_to(null, batch + (1, E))], -2)
+        kv_mask = jnp.concatenate([mask, jnp.ones(batch + (1,), bool)], -1)
+        attn_mask = nn.make_attention_mask(jnp.ones(batch + (self.cells,), bool), kv_mask)
+        y = nn.MultiHeadDotProductAttention(num_heads=self.heads, dtype=jnp.float32, param_dtype=jnp.float32)(
+            jnp.broadcast_to(queries, batch + (self.cells, E)), kv, mask=attn_mask)
+        if self.width:
+            y = Dense(self.width, name="cell_out")(y)
+        return y.reshape(batch + (-1,))
+
+
 class ContextEncoder(nn.Module):
     """f_dyn(tokens [..., N, in], mask bool[..., N]) -> (mu, log_sigma), each [..., h_dim].
     With episode_axis: tokens [..., K, N, in], mask [..., K, N] (K episodes; an episode with
@@ -56,8 +92,9 @@ class ContextEncoder(nn.Module):
     heads: int = 4
     layers: int = 2
     mlp: int = 128
-    pool: str = "mean"   # over an episode's unmasked tokens: "mean" | "max" (zsbfm.names.ENC_POOLS)
-    pool_width: int = 0  # P > 0: a linear map of each token to P channels before the pool
+    pool: str = "mean"   # over an episode's unmasked tokens: "mean" | "max" | "cells" (zsbfm.names.ENC_POOLS)
+    pool_width: int = 0  # P > 0: a linear map of each token (pool="cells": each cell) to P channels
+    cells: int = 0       # pool="cells": the number of map cells, one query each
 
     @nn.compact
     def __call__(self, tokens, mask, episode_axis: bool = False):
@@ -65,6 +102,11 @@ class ContextEncoder(nn.Module):
         for _ in range(self.layers):
             x = EncoderBlock(self.embed, self.heads, self.mlp)(x, mask)
         x = nn.LayerNorm()(x)
+        if self.pool == "cells":  # one pool over every token of every episode
+            if episode_axis:
+                x, mask = x.reshape(x.shape[:-3] + (-1, x.shape[-1])), mask.reshape(mask.shape[:-2] + (-1,))
+            pooled = CellPool(self.cells, self.heads, self.pool_width)(x, mask)
+            return self.gaussian(pooled)
         if self.pool_width:
             x = Dense(self.pool_width, name="pool_in")(x)
         if self.pool == "max":  # an all-masked episode pools to 0 (and is left out of the max over episodes)
@@ -75,6 +117,10 @@ class ContextEncoder(nn.Module):
             pooled = jnp.sum(x * w, axis=-2) / jnp.maximum(jnp.sum(w, axis=-2), 1.0)
         if episode_axis:  # [..., K, embed] -> [..., embed]
             pooled = jnp.max(jnp.where(jnp.any(mask, -1, keepdims=True), pooled, -jnp.inf), axis=-2)
+        return self.gaussian(pooled)
+
+    def gaussian(self, pooled):
+        """(mu, log_sigma) of q(h | context), linear in the pooled features."""
         mu = Dense(self.h_dim, name="mu")(pooled)
         log_sigma = jnp.clip(Dense(self.h_dim, name="log_sigma")(pooled), -6.0, 2.0)
         return mu, log_sigma
