@@ -129,6 +129,13 @@ def test_max_pooling_is_a_max_over_every_token_of_every_episode():
         assert np.allclose(np.asarray(a), np.asarray(b), atol=1e-5) != moves, pool
 
 
+def embedded_by_hand(p, tokens):
+    """LN(E tok): the token embedding and LayerNorm of an encoder with no blocks, from its parameters."""
+    x = tokens @ p["Dense_0"]["kernel"] + p["Dense_0"]["bias"]
+    x = (x - x.mean(-1, keepdims=True)) / jnp.sqrt(x.var(-1, keepdims=True) + 1e-6)
+    return x * p["LayerNorm_0"]["scale"] + p["LayerNorm_0"]["bias"]
+
+
 def test_pool_width_maps_each_token_to_that_many_channels_before_the_max():
     """pool_width = P: mu = W_mu max_t(W_P LN(E tok_t) + b_P) + b_mu, computed here by hand
     from the parameters (layers=0: no attention), P independent channels."""
@@ -137,9 +144,7 @@ def test_pool_width_maps_each_token_to_that_many_channels_before_the_max():
     params = net.init(jax.random.PRNGKey(1), tokens, jnp.ones((2, 7), bool))
     p = params["params"]
     assert p["pool_in"]["kernel"].shape == (16, 40) and p["mu"]["kernel"].shape == (40, 6)
-    x = tokens @ p["Dense_0"]["kernel"] + p["Dense_0"]["bias"]
-    x = (x - x.mean(-1, keepdims=True)) / jnp.sqrt(x.var(-1, keepdims=True) + 1e-6)
-    x = x * p["LayerNorm_0"]["scale"] + p["LayerNorm_0"]["bias"]
+    x = embedded_by_hand(p, tokens)
     pooled = jnp.max(x @ p["pool_in"]["kernel"] + p["pool_in"]["bias"], axis=1)
     mu = pooled @ p["mu"]["kernel"] + p["mu"]["bias"]
     np.testing.assert_allclose(np.asarray(net.apply(params, tokens, jnp.ones((2, 7), bool))[0]),
@@ -159,9 +164,7 @@ def test_cell_pool_is_softmax_attention_of_one_query_per_cell_over_the_tokens_an
     params = net.init(jax.random.PRNGKey(1), tokens, mask)
     p = params["params"]
     cp, att = p["CellPool_0"], p["CellPool_0"]["MultiHeadDotProductAttention_0"]
-    x = tokens @ p["Dense_0"]["kernel"] + p["Dense_0"]["bias"]
-    x = (x - x.mean(-1, keepdims=True)) / jnp.sqrt(x.var(-1, keepdims=True) + 1e-6)
-    x = x * p["LayerNorm_0"]["scale"] + p["LayerNorm_0"]["bias"]
+    x = embedded_by_hand(p, tokens)
     proj = lambda name, v: v @ att[name]["kernel"][:, 0] + att[name]["bias"][0]
     expected = []
     for i in range(2):

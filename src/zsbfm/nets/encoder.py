@@ -92,7 +92,7 @@ class ContextEncoder(nn.Module):
     heads: int = 4
     layers: int = 2
     mlp: int = 128
-    pool: str = "mean"   # over an episode's unmasked tokens: "mean" | "max" | "cells" (zsbfm.names.ENC_POOLS)
+    pool: str = "mean"   # over an episode's unmasked tokens "mean" | "max"; over the context's, "cells" (zsbfm.names.ENC_POOLS)
     pool_width: int = 0  # P > 0: a linear map of each token (pool="cells": each cell) to P channels
     cells: int = 0       # pool="cells": the number of map cells, one query each
 
