@@ -203,6 +203,75 @@ def test_cell_pooling_reads_every_episode_of_a_context_at_once():
         assert not np.allclose(first, mu, atol=1e-3)
 
 
+def test_evidence_pool_sums_each_tokens_wall_and_free_evidence_by_its_predicted_cell():
+    """pool="evidence", no blocks: with p_j = softmax(W_a x_j + b_a) over C cells and
+    s_j = sigmoid(w_e x_j + b_e), the pooled features are log(1 + sum_j m_j p_jc s_j) then
+    log(1 + sum_j m_j p_jc (1 - s_j)) per cell c, computed here by hand over the unmasked tokens
+    x_j = LN(E tok_j); the sown logits are those of every token; K episodes pool as one set."""
+    C = 5
+    tokens = jax.random.normal(jax.random.PRNGKey(0), (2, 7, 9))
+    mask = jnp.asarray([[True] * 7, [True] * 4 + [False] * 3])
+    net = ContextEncoder(h_dim=6, embed=16, heads=2, layers=0, mlp=32, pool="evidence", cells=C)
+    params = net.init(jax.random.PRNGKey(1), tokens, mask)
+    p = params["params"]
+    ev = p["evidence"]
+    x = np.asarray(embedded_by_hand(p, tokens), np.float64)
+    logits = x @ np.asarray(ev["cell_head"]["kernel"]) + np.asarray(ev["cell_head"]["bias"])   # [2, 7, C]
+    wall = x @ np.asarray(ev["wall_head"]["kernel"])[:, 0] + np.asarray(ev["wall_head"]["bias"])[0]
+    prob = np.exp(logits - logits.max(-1, keepdims=True))
+    prob /= prob.sum(-1, keepdims=True)
+    s = 1.0 / (1.0 + np.exp(-wall))
+    expected = []
+    for i in range(2):
+        m = np.asarray(mask[i])
+        n_wall, n_free = ((prob[i][m] * v[m, None]).sum(0) for v in (s[i], 1.0 - s[i]))
+        feat = np.concatenate([np.log1p(n_wall), np.log1p(n_free)])
+        expected.append(feat @ np.asarray(p["mu"]["kernel"]) + np.asarray(p["mu"]["bias"]))
+    (mu, _), sown = net.apply(params, tokens, mask, mutable=["intermediates"])
+    np.testing.assert_allclose(np.asarray(mu), np.stack(expected), rtol=1e-4, atol=1e-4)
+    np.testing.assert_allclose(np.asarray(sown["intermediates"]["evidence"]["cell_logits"][0]), logits,
+                               rtol=1e-4, atol=1e-4)
+    np.testing.assert_allclose(np.asarray(sown["intermediates"]["evidence"]["wall_logit"][0]), wall,
+                               rtol=1e-4, atol=1e-4)
+    split = net.apply(params, tokens.reshape(2, 7, 1, 9), mask.reshape(2, 7, 1), True)[0]
+    np.testing.assert_allclose(np.asarray(split), np.asarray(mu), atol=1e-5)   # 7 one-token episodes
+
+
+def test_the_evidence_loss_is_cross_entropy_to_the_pointed_cell_plus_bce_to_its_wall_label():
+    """enc_pool="evidence": the encoder loss's enc_cell_ce and enc_wall_bce equal, computed
+    here in numpy, the mean over tokens of -log softmax(cell_logits)[q] with q = the cell the
+    move points at ((x + dx, y + dy) of the token's s and a), and of the binary cross-entropy
+    of the wall logit with the layout's wall at q; with K = 2 episodes per context."""
+    from zsbfm.data import collect
+    from tests.test_envs import DELTAS
+
+    cfg = zsbfm.Config.preset("fourrooms", "bfb", n_train_layouts=3, episodes_per_layout=4, h_from="context",
+                              context_loss="bce", enc_pool="evidence", context_episodes=2,
+                              enc_embed=8, enc_mlp=8, enc_layers=1, pred_hidden=(8,))
+    env = zsbfm.make_env("fourrooms", n_train=3)
+    agent = make_agent(cfg, env)
+    ds = jax.jit(lambda k: collect(env, k, env.contexts("train"), 4))(jax.random.PRNGKey(0))
+    enc = jax.jit(agent.init)(jax.random.PRNGKey(1)).params.enc
+    ep = jnp.arange(0, 12, 2)
+    window = tuple(x[:, :, :10] for x in agent.sample_contexts(jax.random.PRNGKey(3), ds, ep))   # [6, 2, 10, ...]
+    _, (metrics, _) = jax.jit(agent.encoder_loss)(enc, window, window, jax.random.PRNGKey(2), ds.context_id[ep])
+    _, sown = agent.encode(enc, *window, episodes=True, sown=True)
+    logits = np.asarray(sown["intermediates"]["evidence"]["cell_logits"][0], np.float64)     # [6, 20, 121]
+    wall = np.asarray(sown["intermediates"]["evidence"]["wall_logit"][0], np.float64)
+    walls = np.asarray(env.contexts("train").walls)
+    obs, act = np.asarray(window[0]).astype(int).reshape(6, 20, 2), np.asarray(window[1]).reshape(6, 20)
+    ce, bce = [], []
+    for i, layout in enumerate(np.asarray(ds.context_id[ep])):
+        for j in range(20):
+            (x, y), (dx, dy) = obs[i, j], DELTAS[int(act[i, j])]
+            q, k = (y + dy) * env.size + (x + dx), float(walls[layout, y + dy, x + dx])
+            ce.append(-(logits[i, j, q] - np.log(np.exp(logits[i, j]).sum())))
+            p = 1.0 / (1.0 + np.exp(-wall[i, j]))
+            bce.append(-k * np.log(p) - (1 - k) * np.log(1 - p))
+    np.testing.assert_allclose(float(metrics["enc_cell_ce"]), np.mean(ce), rtol=1e-4)
+    np.testing.assert_allclose(float(metrics["enc_wall_bce"]), np.mean(bce), rtol=1e-4)
+
+
 def test_discrete_actions_enter_the_encoder_one_hot():
     cfg = zsbfm.Config.preset("fourrooms", "bfb")
     agent = make_agent(cfg, zsbfm.make_env("fourrooms"))
@@ -264,6 +333,8 @@ def test_h_from_context_is_belief_fbs_staged_mean_only(bad):
     (dict(enc_pool_width=-1), "Config.enc_pool_width=-1"),
     (dict(enc_pool_width=64), "Config.enc_pool_width=64"),
     (dict(env="antwind", enc_pool="cells"), "Config.enc_pool='cells' .*cell map"),
+    (dict(env="pointmass", enc_pool="evidence"), "Config.enc_pool='evidence' .*points at"),
+    (dict(enc_pool="evidence", enc_pool_width=4), "Config.enc_pool_width=4 .*evidence"),
 ])
 def test_h_from_settings_are_checked(fields, message):
     fields = dict(fields)

@@ -150,6 +150,31 @@ def test_revealed_features_are_the_cells_a_walk_entered_or_was_blocked_by(name):
         assert 0 < seen[e].sum() < seen[e].size
 
 
+@pytest.mark.parametrize("name", ["doors", "fourrooms"])
+def test_a_move_enters_the_cell_it_points_at_exactly_when_that_cell_is_free(name):
+    """env.pointed_cell is the agent's cell plus the action's direction, and env.cell_walls says
+    what the move does there: from every free cell of every layout and for every action, the
+    next cell is the pointed one if its cell_walls label is 0 and the agent's own if it is 1."""
+    env = zsbfm.make_env(name, n_train=3)
+    ctxs = env.contexts("train")
+    S, A = env.size, len(DELTAS)
+    cells = np.array([[x, y] for y in range(S) for x in range(S)], np.float32)
+    for i in range(3):
+        ctx = index_contexts(ctxs, i)
+        walls = np.asarray(ctx.walls)
+        labels = np.asarray(env.cell_walls(ctx))
+        free = cells[~walls[cells[:, 1].astype(int), cells[:, 0].astype(int)]]
+        obs, act = np.repeat(free, A, 0), np.tile(np.arange(A), len(free))
+        pointed = np.asarray(env.pointed_cell(jnp.asarray(obs), jnp.asarray(act)))
+        (x, y), (dx, dy) = obs.T.astype(int), np.array([DELTAS[a] for a in act]).T
+        np.testing.assert_array_equal(pointed, (y + dy) * S + (x + dx))
+        states = jax.vmap(lambda o: env.reset(jax.random.PRNGKey(0), ctx, start=o))(jnp.asarray(obs))
+        nxt = np.asarray(jax.jit(jax.vmap(env.step))(states, jnp.asarray(act)).obs)
+        entered = np.where(labels[pointed][:, None] == 1, obs, np.stack([x + dx, y + dy], -1))
+        np.testing.assert_array_equal(nxt, entered)
+        assert 0 < labels[pointed].sum() < len(pointed)
+
+
 def test_goal_reward_and_time_limit():
     env = zsbfm.make_env("fourrooms", n_train=5, episode_len=5)
     ctx = index_contexts(env.contexts("train"), 0)

@@ -129,7 +129,10 @@ class Config:
     enc_heads: int = 4           # attention heads per block
     enc_layers: int = 2          # transformer blocks (0: each token's linear embedding is pooled)
     enc_mlp: int = 64            # width of each block's MLP
-    enc_pool: str = "mean"       # pooling of an episode's tokens: "mean" (the paper's) | "max" (elementwise) | "cells" (one attention query per map cell, over every episode's tokens; nets/encoder.py)
+    # pooling of an episode's tokens (nets/encoder.py): "mean" (the paper's) | "max" (elementwise) |
+    # "cells" (one attention query per map cell, over every episode's tokens) | "evidence" (each
+    # token's supervised cell and wall / free evidence, summed per cell over every episode's tokens)
+    enc_pool: str = "mean"
     enc_pool_width: int = 0      # P > 0 (enc_pool="max" | "cells"): each token (each cell) mapped linearly to P channels (0: the embedding's)
     pred_hidden: tuple[int, ...] = (64, 64)     # predictor g(s, a, h) -> s'
     enc_lr: float = 1e-3         # Adam learning rate of the encoder pre-training
@@ -246,11 +249,15 @@ class Config:
             bad("enc_contrast", self.enc_contrast, "enc_contrast >= 0")
         if self.enc_pool not in ENC_POOLS:
             bad("enc_pool", self.enc_pool, f"one of {ENC_POOLS}")
-        if self.enc_pool_width and self.enc_pool == "mean":
+        if self.enc_pool_width and self.enc_pool in ("mean", "evidence"):
             bad("enc_pool_width", self.enc_pool_width,
-                "0 with enc_pool='mean' (a linear map before a mean folds into mu's own; use enc_pool='max' or 'cells')")
+                f"0 with enc_pool={self.enc_pool!r} (mean: a linear map before a mean folds into mu's own; evidence: "
+                "its features are fixed, 2 per cell; use enc_pool='max' or 'cells')")
         if self.enc_pool == "cells" and not spec.cell_map:
             bad("enc_pool", self.enc_pool, f"'mean' or 'max' for env={self.env!r} (it has no cell map of positions: EnvSpec.cell_map)")
+        if self.enc_pool == "evidence" and not spec.pointed_cells:
+            bad("enc_pool", self.enc_pool, f"'mean' or 'max' for env={self.env!r} (it has no cell a move points at: "
+                "EnvSpec.pointed_cells)")
         if self.enc_cell_tokens and not spec.cell_map:
             bad("enc_cell_tokens", self.enc_cell_tokens,
                 f"False for env={self.env!r} (it has no cell map of positions: EnvSpec.cell_map)")

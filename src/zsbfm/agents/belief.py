@@ -104,7 +104,7 @@ class BeliefFBAgent(FBAgent):
     def encoder_net(self) -> ContextEncoder:
         c = self.cfg
         return ContextEncoder(self.mu_dim, c.enc_embed, c.enc_heads, c.enc_layers, c.enc_mlp, c.enc_pool,
-                              c.enc_pool_width, cells=self.env.n_cells if c.enc_pool == "cells" else 0)
+                              c.enc_pool_width, cells=self.env.n_cells if c.enc_pool in ("cells", "evidence") else 0)
 
     @property
     def context_head(self) -> nn.Module:
@@ -147,11 +147,14 @@ class BeliefFBAgent(FBAgent):
             parts.append(jax.nn.one_hot(self.env.cell_index(obs), self.env.n_cells))
         return jnp.concatenate(parts, -1)
 
-    def encode(self, enc_params, obs, action, next_obs, mask=None, episodes: bool = False):
+    def encode(self, enc_params, obs, action, next_obs, mask=None, episodes: bool = False, sown: bool = False):
         """q(h | transitions): (mu, log_sigma), each [..., mu_dim]. obs [..., N, obs_dim];
-        with episodes, [..., K, N, obs_dim]: K episodes, combined by the encoder's max."""
+        with episodes, [..., K, N, obs_dim]: K episodes, combined by the encoder's pool.
+        With sown, ((mu, log_sigma), the encoder's "intermediates" collection)."""
         tok = self.tokens(obs, action, next_obs)
         mask = jnp.ones(tok.shape[:-1], bool) if mask is None else mask
+        if sown:
+            return self.encoder_net.apply(enc_params["encoder"], tok, mask, episodes, mutable=["intermediates"])
         return self.encoder_net.apply(enc_params["encoder"], tok, mask, episodes)
 
     def standardize(self, enc, mu: Array) -> Array:
@@ -230,7 +233,9 @@ class BeliefFBAgent(FBAgent):
         `context_target`'s.
         """
         episodes = self.cfg.context_episodes > 1  # windows [n, K, L, ...]: g predicts all K * L
-        mu, log_sigma = self.encode(enc, *window, episodes=episodes)
+        evidence = self.cfg.enc_pool == "evidence"
+        out = self.encode(enc, *window, episodes=episodes, sown=evidence)
+        (mu, log_sigma), sown = out if evidence else (out, None)
         h = mu + jnp.exp(log_sigma) * jax.random.normal(key, mu.shape)
         flat = (lambda x: x.reshape((x.shape[0], -1) + x.shape[3:])) if episodes else (lambda x: x)
         mse = self.predictor_mse(enc, h, *map(flat, target))
@@ -254,7 +259,29 @@ class BeliefFBAgent(FBAgent):
                 ctx_loss = ctx_mse
             loss = loss + self.cfg.enc_context_coef * ctx_loss
             metrics["enc_ctx_mse"] = ctx_mse
+        if evidence:
+            ev_loss, ev_metrics = self.evidence_loss(sown, window, context)
+            loss = loss + ev_loss
+            metrics.update(ev_metrics)
         return loss, (metrics, mu)
+
+    def evidence_loss(self, sown, window, context: Array):
+        """The supervision of the evidence pool's per-token logits (Config.enc_pool="evidence",
+        nets/encoder.py EvidencePool). With q_j the cell the move of token j points at
+        (env.pointed_cell of its s and a) and y_j that cell's wall label in the window's layout
+        (env.cell_walls of context):
+            mean_j CE(softmax(cell_logits_j), q_j) + mean_j BCE(sigmoid(wall_logit_j), y_j),
+        over the n windows' M = (K *) L tokens, in the encoder's token order. Returns (the
+        sum, {"enc_cell_ce", "enc_wall_bce"})."""
+        ev = sown["intermediates"]["evidence"]
+        cell_logits, wall_logit = ev["cell_logits"][0], ev["wall_logit"][0]   # [n, M, C], [n, M]
+        obs, action = window[0], window[1]
+        pointed = self.env.pointed_cell(obs, action).reshape(obs.shape[0], -1)   # [n, M]
+        walls = jax.vmap(self.env.cell_walls)(self.env.contexts("train"))       # [layouts, C]
+        label = walls[context[:, None], pointed]
+        ce = jnp.mean(optax.softmax_cross_entropy_with_integer_labels(cell_logits, pointed))
+        bce = jnp.mean(optax.sigmoid_binary_cross_entropy(wall_logit, label))
+        return ce + bce, {"enc_cell_ce": ce, "enc_wall_bce": bce}
 
     def context_target(self, window, context: Array) -> Array:
         """What the head c regresses on for each window: [n, h_dim]. k(context) itself
@@ -408,8 +435,9 @@ class BeliefFBAgent(FBAgent):
 
     # -- the update ----------------------------------------------------------------------------
     # what encoder_loss reports (enc_nce with enc_contrast > 0, enc_ctx_mse with h_from="context",
-    # enc_ctx_bce with context_loss="bce")
-    ENCODER_METRICS = ("enc_mse", "enc_kl", "h_norm", "enc_nce", "enc_ctx_mse", "enc_ctx_bce")
+    # enc_ctx_bce with context_loss="bce", enc_cell_ce and enc_wall_bce with enc_pool="evidence")
+    ENCODER_METRICS = ("enc_mse", "enc_kl", "h_norm", "enc_nce", "enc_ctx_mse", "enc_ctx_bce", "enc_cell_ce",
+                       "enc_wall_bce")
 
     @staticmethod
     def _pad(metrics: dict, other_shapes: dict) -> dict:

@@ -245,6 +245,19 @@ class GridWorld(EnvBase):
             seen = seen.at[cell[:, 1], cell[:, 0]].set(True)
         return seen[1:-1, 1:-1].reshape(-1)
 
+    def pointed_cell(self, obs: Array, action: Array) -> Array:
+        """The cell a move points at, the agent's cell plus the action's direction, as a
+        `cell_index` (clipped to the grid): int32[...]. obs [..., 2] as (x, y), action int[...].
+        The move enters it if `cell_walls` says it is free and bumps into it otherwise, in every
+        layout (Config.enc_pool="evidence")."""
+        cell = jnp.round(obs).astype(jnp.int32) + jnp.asarray(ACTION_DELTAS)[jnp.asarray(action).astype(jnp.int32)]
+        return self.cell_index(cell.astype(jnp.float32))
+
+    def cell_walls(self, ctx: GridContext) -> Array:
+        """The layout's wall map over every `cell_index`, border included: float32[n_cells]
+        (1 = wall)."""
+        return ctx.walls.reshape(-1).astype(jnp.float32)
+
     # -- contexts -----------------------------------------------------------------------
     def contexts(self, split: str) -> GridContext:
         """Stacked fixed layouts of a split: walls bool[n, H, W]."""
@@ -374,7 +387,7 @@ for _family in FAMILIES.values():
         name=_family.name,
         make=functools.partial(GridWorld, _family.name),
         episode_len=100, discrete=True, n_train=20, finite_states=True, binary_context=True, cell_map=True,
-        revealed_context=True,
+        revealed_context=True, pointed_cells=True,
         max_train=None if _family.max_layouts is None else _family.max_layouts - N_TEST_LAYOUTS,
         presets={"cpu": CPU_GRID, "long": LONG_GRID, "authors": AUTHORS_GRID,
                  "paper": dict(n_train_layouts=20, episodes_per_layout=500, **PAPER_DISCRETE)},

@@ -13,7 +13,10 @@ an elementwise max over episodes: a feature that any episode shows (a door it pa
 context shows; invariant to the episodes' order. With pool="cells" (map envs) the pool is by
 cell instead: one learned query per map cell attends over every token of the context (all K
 episodes at once) and a learned null token (`CellPool`), so each cell's features are read from
-the transitions that bear on it, wherever in the layout they are. It returns a diagonal Gaussian
+the transitions that bear on it, wherever in the layout they are. With pool="evidence" (discrete
+map envs) each token says which cell it bears on and what it shows there (`EvidencePool`), two
+per-token predictions the encoder loss supervises with targets that are the same in every
+layout, and the pool sums that evidence per cell. It returns a diagonal Gaussian
 q(h | episode) = N(mu, diag(exp(log_sigma))^2). Everything runs in float32.
 
 g(s_t, a_t, h) regresses s_{t+1}: predicting the next state needs the layout, so h must
@@ -25,6 +28,7 @@ from __future__ import annotations
 from typing import Sequence
 
 import flax.linen as nn
+import jax
 import jax.numpy as jnp
 
 from zsbfm.nets.mlp import MLP, Dense
@@ -82,6 +86,35 @@ class CellPool(nn.Module):
         return y.reshape(batch + (-1,))
 
 
+class EvidencePool(nn.Module):
+    """Pooling of per-token evidence by map cell: x [..., M, E], mask bool[..., M] -> [..., 2C].
+
+    Each token j gives logits over the C map cells, p_j = softmax(W_a x_j + b_a) (the cell
+    the transition bears on), and a wall logit e_j = w_e . x_j + b_e (what it shows there).
+    Per cell c the evidence of a wall and of free space is summed over the unmasked tokens,
+        n_c^wall = sum_j m_j p_jc sigmoid(e_j),   n_c^free = sum_j m_j p_jc (1 - sigmoid(e_j)),
+    and the features are [log(1 + n^wall); log(1 + n^free)]. Sums are invariant to the tokens'
+    order and unaffected by masked ones. The logits are sown in the "intermediates" collection
+    ("cell_logits" [..., M, C], "wall_logit" [..., M]) so that the encoder loss can supervise
+    them (agents/belief.py `evidence_loss`): the cell a move points at and that cell's wall
+    label are the same function of (s, a, s') in every layout, so, unlike a pool whose
+    weights are free, what it learns on train layouts holds on unseen ones.
+    """
+
+    cells: int
+
+    @nn.compact
+    def __call__(self, x, mask):
+        logits = Dense(self.cells, name="cell_head")(x)
+        wall = Dense(1, name="wall_head")(x)[..., 0]
+        self.sow("intermediates", "cell_logits", logits)
+        self.sow("intermediates", "wall_logit", wall)
+        p = jax.nn.softmax(logits, -1) * mask[..., None]
+        s = jax.nn.sigmoid(wall)[..., None]
+        n_wall, n_free = jnp.sum(p * s, -2), jnp.sum(p * (1.0 - s), -2)
+        return jnp.concatenate([jnp.log1p(n_wall), jnp.log1p(n_free)], -1)
+
+
 class ContextEncoder(nn.Module):
     """f_dyn(tokens [..., N, in], mask bool[..., N]) -> (mu, log_sigma), each [..., h_dim].
     With episode_axis: tokens [..., K, N, in], mask [..., K, N] (K episodes; an episode with
@@ -92,9 +125,9 @@ class ContextEncoder(nn.Module):
     heads: int = 4
     layers: int = 2
     mlp: int = 128
-    pool: str = "mean"   # over an episode's unmasked tokens "mean" | "max"; over the context's, "cells" (zsbfm.names.ENC_POOLS)
+    pool: str = "mean"   # over an episode's unmasked tokens "mean" | "max"; over the context's, "cells" | "evidence" (zsbfm.names.ENC_POOLS)
     pool_width: int = 0  # P > 0: a linear map of each token (pool="cells": each cell) to P channels
-    cells: int = 0       # pool="cells": the number of map cells, one query each
+    cells: int = 0       # pool="cells" | "evidence": the number of map cells
 
     @nn.compact
     def __call__(self, tokens, mask, episode_axis: bool = False):
@@ -102,10 +135,13 @@ class ContextEncoder(nn.Module):
         for _ in range(self.layers):
             x = EncoderBlock(self.embed, self.heads, self.mlp)(x, mask)
         x = nn.LayerNorm()(x)
-        if self.pool == "cells":  # one pool over every token of every episode
+        if self.pool in ("cells", "evidence"):  # one pool over every token of every episode
             if episode_axis:
                 x, mask = x.reshape(x.shape[:-3] + (-1, x.shape[-1])), mask.reshape(mask.shape[:-2] + (-1,))
-            pooled = CellPool(self.cells, self.heads, self.pool_width)(x, mask)
+            if self.pool == "cells":
+                pooled = CellPool(self.cells, self.heads, self.pool_width)(x, mask)
+            else:
+                pooled = EvidencePool(self.cells, name="evidence")(x, mask)
             return self.gaussian(pooled)
         if self.pool_width:
             x = Dense(self.pool_width, name="pool_in")(x)
