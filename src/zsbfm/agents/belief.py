@@ -29,7 +29,9 @@ context's. With Config.context_target="revealed" the head's target is instead wh
 window itself shows of the layout: k(layout) on the features its transitions reveal
 (env.revealed_features: cells entered or bumped into), the train layouts' mean feature
 elsewhere. Recalling a train layout's unseen cells then earns nothing, so c can only learn
-to read evidence, which an unseen layout also has.
+to read evidence, which an unseen layout also has. With Config.enc_pool="evidence" the
+encoder loss also supervises the pool's per-token predictions of which cell a transition
+bears on and whether it is a wall (`evidence_loss`), targets that hold in every layout.
 
 Schedules (Config.encoder_mode):
   "staged" (default, the paper's): steps [0, enc_steps) train f_dyn only; at step
