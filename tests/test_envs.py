@@ -150,7 +150,8 @@ def test_revealed_features_are_the_cells_a_walk_entered_or_was_blocked_by(name):
         assert 0 < seen[e].sum() < seen[e].size
 
 
-@pytest.mark.parametrize("name", ["doors", "fourrooms"])
+# doors runs the same GridWorld code on other layouts: in `make test-all`
+@pytest.mark.parametrize("name", ["fourrooms", pytest.param("doors", marks=pytest.mark.slow)])
 def test_a_move_enters_the_cell_it_points_at_exactly_when_that_cell_is_free(name):
     """env.pointed_cell is the agent's cell plus the action's direction, and env.cell_walls says
     what the move does there: from every free cell of every layout and for every action, the
