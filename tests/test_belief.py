@@ -369,6 +369,7 @@ def test_a_multi_episode_context_draws_distinct_episodes_of_one_layout():
     assert (again != eps).any()                                               # the key matters
 
 
+@pytest.mark.slow  # ~30 s of eager encoder calls; the cells and evidence pools' episode axis stay in the default run
 def test_a_k_episode_context_is_max_pooled_over_its_episodes():
     """h of a K-episode context: invariant to the order of the episodes and of the
     transitions within one, unchanged when an episode is repeated (a max, not a mean), and
@@ -479,7 +480,10 @@ def test_context_target_revealed_is_the_map_where_the_window_shows_it_and_the_me
         zsbfm.Config.preset("antwind", "bfb", h_from="context", context_target="revealed")
 
 
-@pytest.mark.parametrize("hidden, loss", [((), "mse"), pytest.param((64,), "bce", marks=pytest.mark.slow)])
+# ~30 s each, in `make test-all`; the default run keeps the head's loss (the bce test below) and
+# F's training h (test_h_train_true_trains_f_on_each_transitions_own_layout_walls)
+@pytest.mark.parametrize("hidden, loss", [pytest.param((), "mse", marks=pytest.mark.slow),
+                                          pytest.param((64,), "bce", marks=pytest.mark.slow)])
 def test_h_from_context_predicts_the_wall_map_and_is_what_f_reads(hidden, loss):
     """h_from="context": a short pre-training makes c(mu) of fresh episodes predict their
     layout's wall map better than the best constant (the train layouts' mean map), and the h
