@@ -238,7 +238,7 @@ class GridWorld(EnvBase):
         cur = jnp.round(obs).astype(jnp.int32).reshape(-1, 2)
         nxt = jnp.round(next_obs).astype(jnp.int32).reshape(-1, 2)
         stayed = jnp.all(cur == nxt, -1, keepdims=True)
-        target = cur + jnp.asarray(ACTION_DELTAS)[jnp.asarray(action).astype(jnp.int32).reshape(-1)]
+        target = self._pointed_xy(obs, action).reshape(-1, 2)
         bumped = jnp.where(stayed, target, cur)  # a move that went through shows no more than cur
         seen = jnp.zeros((self.size, self.size), bool)
         for cell in (cur, nxt, bumped):
@@ -250,8 +250,12 @@ class GridWorld(EnvBase):
         `cell_index` (clipped to the grid): int32[...]. obs [..., 2] as (x, y), action int[...].
         The move enters it if `cell_walls` says it is free and bumps into it otherwise, in every
         layout (Config.enc_pool="evidence")."""
-        cell = jnp.round(obs).astype(jnp.int32) + jnp.asarray(ACTION_DELTAS)[jnp.asarray(action).astype(jnp.int32)]
-        return self.cell_index(cell.astype(jnp.float32))
+        return self.cell_index(self._pointed_xy(obs, action))
+
+    @staticmethod
+    def _pointed_xy(obs: Array, action: Array) -> Array:
+        """The agent's cell plus the action's direction, (x, y): int32[..., 2] (not clipped)."""
+        return jnp.round(obs).astype(jnp.int32) + jnp.asarray(ACTION_DELTAS)[jnp.asarray(action).astype(jnp.int32)]
 
     def cell_walls(self, ctx: GridContext) -> Array:
         """The layout's wall map over every `cell_index`, border included: float32[n_cells]
