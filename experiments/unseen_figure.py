@@ -5,8 +5,10 @@
         --group "true-map F, map encoder" ctxtrue160-k8-long-wide@ctxmlp160-k8-e96max-enc ... \\
         --bar FB=fb160-long-wide --out docs/figures/fourrooms_unseen_layouts.png
 
-Each --group is a label and the pairings it holds, RUN or RUN@ENCODER (run names: the last
-path component of eval_keys.py's "run" and "encoder_of"). A group is drawn as its pairings'
+Each --group is a label and the pairings it holds, RUN or RUN@ENCODER, each with an optional
+:READ and :K (run names: the last path component of eval_keys.py's "run" and "encoder_of";
+READ and K its --context-read and --context-episodes, e.g. RUN@ENCODER:evidence or
+RUN@ENCODER:evidence:1; none: the run's own). A group is drawn as its pairings'
 means over draws (dots, with their standard error over draws) and, with several pairings,
 their mean and its standard error over the pairings (a bar). --bar NAME=RUN draws RUN's
 held-out mean as a dashed line and the same + 0.15 (the issue's bar) as a dotted one.
@@ -20,19 +22,24 @@ import os
 import numpy as np
 
 
-def load(path: str) -> dict[tuple[str, str], dict]:
-    """(run name, encoder run name or "") -> the last eval_keys.py row of that pairing."""
+def load(path: str) -> dict[tuple[str, str, str, str], dict]:
+    """(run name, encoder run name or "", context_read or "", context_episodes or "") -> the
+    last eval_keys.py row of that pairing."""
     rows = {}
     for line in open(path):
         row = json.loads(line)
         name = lambda p: os.path.basename(os.path.normpath(p)) if p else ""
-        rows[(name(row["run"]), name(row.get("encoder_of") or ""))] = row
+        rows[(name(row["run"]), name(row.get("encoder_of") or ""), row.get("context_read", ""),
+              str(row.get("context_episodes", "")))] = row
     return rows
 
 
-def pairing(spec: str) -> tuple[str, str]:
+def pairing(spec: str) -> tuple[str, str, str, str]:
+    """RUN[@ENCODER][:READ[:K]] -> (RUN, ENCODER or "", READ or "", K or "")."""
+    spec, _, rest = spec.partition(":")
+    read, _, k = rest.partition(":")
     run, _, enc = spec.partition("@")
-    return run, enc
+    return run, enc, read, k
 
 
 def main():

@@ -221,14 +221,18 @@ def test_evidence_pool_sums_each_tokens_wall_and_free_evidence_by_its_predicted_
     prob = np.exp(logits - logits.max(-1, keepdims=True))
     prob /= prob.sum(-1, keepdims=True)
     s = 1.0 / (1.0 + np.exp(-wall))
-    expected = []
+    expected, counts = [], []
     for i in range(2):
         m = np.asarray(mask[i])
         n_wall, n_free = ((prob[i][m] * v[m, None]).sum(0) for v in (s[i], 1.0 - s[i]))
         feat = np.concatenate([np.log1p(n_wall), np.log1p(n_free)])
         expected.append(feat @ np.asarray(p["mu"]["kernel"]) + np.asarray(p["mu"]["bias"]))
+        counts.append((n_wall, n_free))
     (mu, _), sown = net.apply(params, tokens, mask, mutable=["intermediates"])
     np.testing.assert_allclose(np.asarray(mu), np.stack(expected), rtol=1e-4, atol=1e-4)
+    for k, name in enumerate(("n_wall", "n_free")):
+        np.testing.assert_allclose(np.asarray(sown["intermediates"]["evidence"][name][0]),
+                                   np.stack([c[k] for c in counts]), rtol=1e-4, atol=1e-5)
     np.testing.assert_allclose(np.asarray(sown["intermediates"]["evidence"]["cell_logits"][0]), logits,
                                rtol=1e-4, atol=1e-4)
     np.testing.assert_allclose(np.asarray(sown["intermediates"]["evidence"]["wall_logit"][0]), wall,
@@ -270,6 +274,54 @@ def test_the_evidence_loss_is_cross_entropy_to_the_pointed_cell_plus_bce_to_its_
             bce.append(-k * np.log(p) - (1 - k) * np.log(1 - p))
     np.testing.assert_allclose(float(metrics["enc_cell_ce"]), np.mean(ce), rtol=1e-4)
     np.testing.assert_allclose(float(metrics["enc_wall_bce"]), np.mean(bce), rtol=1e-4)
+
+
+def test_evidence_read_takes_the_seen_cells_wall_fraction_and_the_head_elsewhere():
+    """context_read="evidence": n^wall / (n^wall + n^free) where n^wall + n^free >= 1/2, the
+    head's value where the context holds less evidence of the cell."""
+    from zsbfm.agents.belief import BeliefFBAgent
+
+    n_wall = jnp.asarray([[2.0, 0.0, 0.3, 0.1, 0.0]])
+    n_free = jnp.asarray([[0.0, 3.0, 0.3, 0.2, 0.0]])
+    head = jnp.asarray([[0.2, 0.9, 0.7, 0.4, 0.6]])
+    got = BeliefFBAgent.evidence_read(n_wall, n_free, head)
+    np.testing.assert_allclose(np.asarray(got), [[1.0, 0.0, 0.5, 0.4, 0.6]], rtol=1e-6)
+
+
+def test_context_read_evidence_puts_the_pools_counts_into_the_heads_map():
+    """context_h with context_read="evidence": per interior cell (the wall map's order, walls[1:-1,
+    1:-1] flattened), the sown counts' wall fraction where they sum to >= 1/2, sigmoid(c(mu))
+    elsewhere, computed here in numpy; the h table (context_len = episode_len, h_train_true off)
+    holds the same h of each episode. The cell head's kernel is scaled up so that each token
+    points at one cell, as a trained one does, and some cells are seen."""
+    from zsbfm.data import collect
+
+    cfg = zsbfm.Config.preset("fourrooms", "bfb", n_train_layouts=3, episodes_per_layout=2, h_from="context",
+                              context_loss="bce", enc_pool="evidence", context_read="evidence",
+                              enc_embed=8, enc_mlp=8, enc_layers=1, pred_hidden=(8,))
+    env = zsbfm.make_env("fourrooms", n_train=3)
+    agent = make_agent(cfg, env)
+    ds = jax.jit(lambda k: collect(env, k, env.contexts("train"), 2))(jax.random.PRNGKey(0))
+    state = jax.jit(agent.init)(jax.random.PRNGKey(1))
+    enc = state.params.enc
+    cell_head = enc["encoder"]["params"]["evidence"]["cell_head"]
+    enc["encoder"]["params"]["evidence"]["cell_head"] = dict(cell_head, kernel=cell_head["kernel"] * 40.0)
+    state = state.replace(params=state.params.replace(enc=enc))
+
+    h = jax.jit(jax.vmap(lambda o, a: agent.context_h(state.params, Context(obs=o, action=a))))(ds.obs, ds.action)
+    (mu, _), sown = agent.encode(enc, ds.obs[:, :-1], ds.action, ds.obs[:, 1:], sown=True)
+    n_wall, n_free = (np.asarray(sown["intermediates"]["evidence"][k][0], np.float64) for k in ("n_wall", "n_free"))
+    interior = lambda v: v.reshape(-1, env.size, env.size)[:, 1:-1, 1:-1].reshape(v.shape[0], -1)   # noqa: E731
+    n_wall, n_free = interior(n_wall), interior(n_free)
+    head = 1.0 / (1.0 + np.exp(-np.asarray(agent.context_head.apply(enc["context_head"], mu), np.float64)))
+    seen = n_wall + n_free >= 0.5
+    expected = np.where(seen, n_wall / np.maximum(n_wall + n_free, 0.5), head)
+    assert 0 < seen.sum() < seen.size
+    np.testing.assert_allclose(np.asarray(h), expected, rtol=1e-4, atol=1e-5)
+    assert not np.allclose(np.asarray(h)[seen], head[seen], atol=1e-2)   # the head alone reads otherwise
+
+    state = jax.jit(agent.build_h_table)(state, ds, jax.random.PRNGKey(4))
+    np.testing.assert_allclose(np.asarray(state.h_table[:, 0]), expected, rtol=1e-4, atol=1e-5)
 
 
 def test_discrete_actions_enter_the_encoder_one_hot():
@@ -335,6 +387,9 @@ def test_h_from_context_is_belief_fbs_staged_mean_only(bad):
     (dict(env="antwind", enc_pool="cells"), "Config.enc_pool='cells' .*cell map"),
     (dict(env="pointmass", enc_pool="evidence"), "Config.enc_pool='evidence' .*points at"),
     (dict(enc_pool="evidence", enc_pool_width=4), "Config.enc_pool_width=4 .*evidence"),
+    (dict(h_from="context", enc_pool="evidence", context_read="map"), "Config.context_read='map'"),
+    (dict(h_from="context", context_read="evidence"), "Config.context_read='evidence' .*enc_pool='mean'"),
+    (dict(enc_pool="evidence", context_read="evidence"), "Config.context_read='evidence' .*h_from='mu'"),
 ])
 def test_h_from_settings_are_checked(fields, message):
     fields = dict(fields)

@@ -252,3 +252,19 @@ def test_context_coverage_finds_the_doors_and_what_an_episode_reveals():
     cells = jnp.asarray([[1, 1], [2, 1], [2, 1], [2, 2]], jnp.float32)
     seen = np.asarray(revealed(zsbfm.make_env("fourrooms"), cells, jnp.asarray([3, 0, 1])))
     assert set(zip(*np.nonzero(seen))) == {(1, 1), (1, 2), (2, 2)}  # (y, x)
+
+
+@pytest.mark.parametrize("name", ["doors", "fourrooms"])
+def test_cells_to_features_reads_the_interior_cells_in_the_wall_maps_order(name):
+    """env.cells_to_features of a value per cell_index is the value of each interior cell
+    (x, y) in 1..size-2, row-major, the order of context_features, so that the wall map per
+    cell maps onto context_features itself."""
+    env = zsbfm.make_env(name, n_train=3)
+    S = env.size
+    got = np.asarray(env.cells_to_features(jnp.arange(env.n_cells)[None].repeat(2, 0)))
+    np.testing.assert_array_equal(got, [[y * S + x for y in range(1, S - 1) for x in range(1, S - 1)]] * 2)
+    ctxs = env.contexts("train")
+    for i in range(3):
+        ctx = index_contexts(ctxs, i)
+        np.testing.assert_array_equal(np.asarray(env.cells_to_features(env.cell_walls(ctx))),
+                                      np.asarray(env.context_features(ctx)))

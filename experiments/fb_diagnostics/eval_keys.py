@@ -16,6 +16,9 @@ that run's own evaluation keys.
 Several runs (with as many --encoder-of, paired by position: independently trained
 seeds): each is scored as above, then the mean over the runs of their means over draws and
 its standard error over the runs (sample std / sqrt(runs)), the seed-to-seed spread.
+--context-read: h read off the context this way (h_swap.py --context-read).
+--context-episodes K: test-time contexts of K episodes instead of the run's own number
+(Config.context_episodes; 1 is the paper's protocol).
 """
 from __future__ import annotations
 
@@ -27,7 +30,7 @@ import numpy as np
 import zsbfm
 from zsbfm.evaluate import score_draws, standard_error
 
-from h_swap import with_encoder_of  # this script's folder is on sys.path
+from h_swap import with_encoder_of, with_read  # this script's folder is on sys.path
 
 
 def main():
@@ -37,10 +40,16 @@ def main():
                    help="one per RUN (paired by position), or none")
     p.add_argument("--keys", type=int, default=8, help="evaluation draws: the run's own, then fresh ones")
     p.add_argument("--protocol", default="paper")
+    p.add_argument("--context-read", default="", choices=["", "head", "evidence"],
+                   help="read h off the context this way (Config.context_read) instead of the run's own")
+    p.add_argument("--context-episodes", type=int, default=0,
+                   help="episodes per test-time context (0: the run's own context_episodes)")
     p.add_argument("--json", default="")
     a = p.parse_args()
     if a.keys <= 0:
         p.error(f"--keys must be a positive integer, got {a.keys}")
+    if a.context_episodes < 0:
+        p.error(f"--context-episodes must be a positive integer (0: the run's own), got {a.context_episodes}")
     if a.encoder_of and len(a.encoder_of) != len(a.runs):
         p.error(f"--encoder-of: {len(a.encoder_of)} runs for {len(a.runs)} RUNs; give one per RUN or none")
     means = {"train": [], "test": []}
@@ -50,9 +59,13 @@ def main():
         run = zsbfm.load(path)
         if encoder_of:
             run = with_encoder_of(run, encoder_of)
-        out = {"run": path, "encoder_of": encoder_of, "protocol": a.protocol, "keys": a.keys}
+        run = with_read(run, a.context_read)
+        out = {"run": path, "encoder_of": encoder_of, "protocol": a.protocol, "keys": a.keys,
+               **({"context_read": run.cfg.context_read} if run.cfg.context_read != "head" else {}),
+               **({"context_episodes": a.context_episodes} if a.context_episodes else {})}
+        episodes = {"context_episodes": a.context_episodes} if a.context_episodes else {}
         for split in ("train", "test"):
-            scores = [float(x) for x in score_draws(run, a.keys, split, a.protocol)[:, 0]]  # seed 0
+            scores = [float(x) for x in score_draws(run, a.keys, split, a.protocol, **episodes)[:, 0]]  # seed 0
             out[split] = scores
             means[split].append(float(np.mean(scores)))
             print(f"  {split:5s} {a.protocol}: {np.mean(scores):.3f} +- {float(standard_error(scores)):.3f} "

@@ -21,6 +21,9 @@ after its encoder phase (`--set steps=<enc_steps + chunk_steps>`) can be scored 
 full run of the same settings: an encoder variant at the cost of its encoder phase alone. The
 two configs may differ only in the encoder's fields, its seed and its train layouts
 (ENCODER_FIELDS; with other train layouts, "train" means RUN_B's).
+--context-read evidence: h read off the context as Config.context_read="evidence" (the
+evidence pool's wall fraction on the cells the context shows, c(mu) elsewhere) in place of the
+run's own read; the parameters are the same (an encoder with enc_pool="evidence").
 """
 from __future__ import annotations
 
@@ -97,7 +100,8 @@ ENCODER_FIELDS = DATA_FIELDS | {
     "enc_contrast", "enc_cell_tokens", "enc_pool", "enc_pool_width", "enc_steps", "enc_batch", "enc_target", "h_dim",
     "enc_context_coef", "context_head_hidden", "context_loss", "context_target", "context_episodes",
     "name", "steps", "eval_every", "chunk_steps",
-    "h_train_mask"}  # F's training input only: evaluation never reads it, so F's run may differ there too
+    "h_train_mask",  # F's training input only: evaluation never reads it, so F's run may differ there too
+    "context_read"}
 
 
 def with_encoder_of(run, path: str):
@@ -120,6 +124,15 @@ def with_encoder_of(run, path: str):
     return dataclasses.replace(other, params=run.params.replace(enc=other.params.enc))
 
 
+def with_read(run, read: str):
+    """`run` with Config.context_read=`read` (how h is read off a context; the same parameters),
+    or `run` itself for read=""."""
+    if not read or read == run.cfg.context_read:
+        return run
+    print(f"h read off the context as context_read={read!r} (the run's own: {run.cfg.context_read!r})")
+    return dataclasses.replace(run, cfg=dataclasses.replace(run.cfg, context_read=read))
+
+
 def main():
     p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("run")
@@ -131,11 +144,14 @@ def main():
     p.add_argument("--map-contexts", type=int, default=8, help="fresh contexts per layout for the map error")
     p.add_argument("--encoder-of", default="", metavar="RUN_B",
                    help="score with RUN_B's encoder and head (both runs h_train_true)")
+    p.add_argument("--context-read", default="", choices=["", "head", "evidence"],
+                   help="read h off the context this way (Config.context_read) instead of the run's own")
     p.add_argument("--json", default="")
     a = p.parse_args()
     run = zsbfm.load(a.run)
     if a.encoder_of:
         run = with_encoder_of(run, a.encoder_of)
+    run = with_read(run, a.context_read)
     if run.cfg.h_from != "context":
         raise SystemExit(f"{a.run}: h_from={run.cfg.h_from!r}, expected 'context' (F reads a wall map)")
     env = make_env_for(run.cfg, progress=False)
@@ -150,16 +166,20 @@ def main():
     if K > 1:  # the run's own context is K episodes
         agents = {name.replace("one episode", f"{K} episodes").replace("the episode's", f"{K} episodes'"): agent
                   for name, agent in agents.items()}
+    if run.cfg.context_read == "evidence":  # h is no longer c(mu) alone
+        agents = {name.replace("c(mu)", "evidence + c(mu)"): agent for name, agent in agents.items()}
     own_name, rounded_name, revealed_name = (name for name in agents if name != "true wall map")
     variants = [(name, agent, None, None) for name, agent in agents.items()]
+    h_name = "evidence + c(mu)" if run.cfg.context_read == "evidence" else "c(mu)"
     for n in a.context_lens:
-        variants += [(f"c(mu), {n}-step context", agents[own_name], n, None),
-                     (f"c(mu) rounded, {n}-step context", agents[rounded_name], n, None),
+        variants += [(f"{h_name}, {n}-step context", agents[own_name], n, None),
+                     (f"{h_name} rounded, {n}-step context", agents[rounded_name], n, None),
                      (f"revealed map, {n}-step context", agents[revealed_name], n, None)]
     for k in a.context_episodes:
-        variants += [(f"c(mu), {k}-episode context", agents[own_name], None, k),
+        variants += [(f"{h_name}, {k}-episode context", agents[own_name], None, k),
                      (f"revealed map, {k}-episode context", agents[revealed_name], None, k)]
-    out = {"run": a.run, **({"encoder_of": a.encoder_of} if a.encoder_of else {})}
+    out = {"run": a.run, **({"encoder_of": a.encoder_of} if a.encoder_of else {}),
+           **({"context_read": run.cfg.context_read} if run.cfg.context_read != "head" else {})}
     params0 = jax.tree_util.tree_map(lambda x: x[0], run.params)  # seed 0
     varies = jnp.asarray(varying_cells(env)[1:-1, 1:-1].reshape(-1))
     for name, agent, n, k in variants:

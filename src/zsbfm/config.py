@@ -18,7 +18,7 @@ import zsbfm.envs  # noqa: F401  (registers the built-in environments)
 from zsbfm.envs.registry import env_names, env_spec
 # the names of every choice live below config (zsbfm.names); re-exported here for callers
 from zsbfm.names import (ALGOS, BELIEF_ALGOS, DATA_POLICIES, ENCODER_MODES, EXPERT_SOURCES,  # noqa: F401
-                         CONTEXT_LOSSES, CONTEXT_TARGETS, ENC_POOLS, F_ARCHS, H_FROM, OBS_ENCODINGS, ON_NONFINITE, RFB_Z_STATES, SIZES, SPLUS,
+                         CONTEXT_LOSSES, CONTEXT_READS, CONTEXT_TARGETS, ENC_POOLS, F_ARCHS, H_FROM, OBS_ENCODINGS, ON_NONFINITE, RFB_Z_STATES, SIZES, SPLUS,
                          TARGET_POLICIES, TWIN_TARGETS, algo_names)
 
 ENVS = env_names()                     # the environments registered at import (zsbfm.envs.registry)
@@ -125,6 +125,7 @@ class Config:
     context_head_hidden: tuple[int, ...] = ()  # h_from="context": hidden ReLU layers of the head c; () = linear
     context_loss: str = "mse"    # h_from="context": the head's loss, "mse" | "bce" (0/1 features: c gives logits, h = sigmoid)
     context_target: str = "map"  # h_from="context": the head regresses on the layout's "map" | what the context "revealed" of it
+    context_read: str = "head"   # h_from="context": h = c(mu) ("head"), or on the cells the context shows, its evidence ("evidence")
     enc_embed: int = 32          # transformer width
     enc_heads: int = 4           # attention heads per block
     enc_layers: int = 2          # transformer blocks (0: each token's linear embedding is pooled)
@@ -287,6 +288,11 @@ class Config:
                 f"'mse' for env={self.env!r} (its context features are not 0/1: EnvSpec.binary_context)")
         if self.context_target not in CONTEXT_TARGETS:
             bad("context_target", self.context_target, f"one of {CONTEXT_TARGETS}")
+        if self.context_read not in CONTEXT_READS:
+            bad("context_read", self.context_read, f"one of {CONTEXT_READS}")
+        if self.context_read == "evidence" and (self.h_from != "context" or self.enc_pool != "evidence"):
+            bad("context_read", self.context_read, "'head' unless h_from='context' and enc_pool='evidence' (it reads "
+                f"the evidence pool's counts into the head's map; got h_from={self.h_from!r}, enc_pool={self.enc_pool!r})")
         if self.context_target == "revealed" and self.h_from != "context":
             bad("context_target", self.context_target, "'map' unless h_from='context' (it is the head's target)")
         if self.context_target == "revealed" and not spec.revealed_context:

@@ -23,6 +23,7 @@ CONTEXT_LOSSES = ("mse", "bce")  # the loss of Belief-FB's context head (agents/
 # what that head regresses on: the layout's whole feature "map" | the features the context
 # "revealed" (the map where its transitions show it, the train layouts' mean elsewhere)
 CONTEXT_TARGETS = ("map", "revealed")
+CONTEXT_READS = ("head", "evidence")  # how Belief-FB reads h = the map off a context (agents/belief.py read_context)
 ENC_POOLS = ("mean", "max", "cells", "evidence")  # how the context encoder pools its tokens (nets/encoder.py)
 TARGET_POLICIES = ("greedy", "boltzmann", "uniform")
 SPLUS = ("batch", "states", "exact")    # the s+ estimator of the FB loss (agents/fb.py)

@@ -31,7 +31,9 @@ window itself shows of the layout: k(layout) on the features its transitions rev
 elsewhere. Recalling a train layout's unseen cells then earns nothing, so c can only learn
 to read evidence, which an unseen layout also has. With Config.enc_pool="evidence" the
 encoder loss also supervises the pool's per-token predictions of which cell a transition
-bears on and whether it is a wall (`evidence_loss`), targets that hold in every layout.
+bears on and whether it is a wall (`evidence_loss`), targets that hold in every layout;
+with Config.context_read="evidence" h then takes, on the cells the context shows, the
+wall fraction of the pool's evidence, and c(mu) only on the others (`read_context`).
 
 Schedules (Config.encoder_mode):
   "staged" (default, the paper's): steps [0, enc_steps) train f_dyn only; at step
@@ -175,6 +177,28 @@ class BeliefFBAgent(FBAgent):
             return self.head_features(self.context_head.apply(enc["context_head"], mu))
         return self.standardize(enc, mu)
 
+    def read_context(self, enc, obs: Array, action: Array, next_obs: Array, episodes: bool = False) -> Array:
+        """h_from="context": F's h of transitions obs [..., N, d] (with episodes, [..., K, N, d]
+        of K episodes): [..., h_dim]. Config.context_read="head": c(mu). "evidence": for each
+        map feature j, with n^wall_j and n^free_j the evidence pool's counts at its cell
+        (EvidencePool; env.cells_to_features), `evidence_read` of them and c(mu)_j. The counts
+        come from the encoder's own per-token predictions, never from the layout."""
+        if self.cfg.context_read == "head":
+            return self.h_of_mu(enc, self.encode(enc, obs, action, next_obs, episodes=episodes)[0])
+        (mu, _), sown = self.encode(enc, obs, action, next_obs, episodes=episodes, sown=True)
+        ev = sown["intermediates"]["evidence"]
+        n_wall, n_free = (self.env.cells_to_features(ev[k][0]) for k in ("n_wall", "n_free"))
+        return self.evidence_read(n_wall, n_free, self.h_of_mu(enc, mu))
+
+    @staticmethod
+    def evidence_read(n_wall: Array, n_free: Array, head: Array) -> Array:
+        """Where the context shows a cell, n^wall + n^free >= 1/2 (half a transition's evidence
+        or more), the wall fraction it shows, n^wall / (n^wall + n^free); elsewhere the head's
+        prediction. All [..., k]. A wall map read this way keeps what the context saw even
+        where the head, fitted to the train layouts, would recall another layout's cell."""
+        seen = n_wall + n_free
+        return jnp.where(seen >= 0.5, n_wall / jnp.maximum(seen, 0.5), head)
+
     def head_features(self, out: Array) -> Array:
         """The context features the head's output c(mu) predicts: sigmoid(c) with
         context_loss="bce" (c are logits), c itself with "mse"."""
@@ -188,7 +212,12 @@ class BeliefFBAgent(FBAgent):
                            episodes=obs.ndim == 3)[0]
 
     def context_h(self, params: FBParams, context: Context) -> Array:
-        """h of the reward-free context (h_of_mu of its `context_mu`): [h_dim]."""
+        """h of the reward-free context: [h_dim]. h_of_mu of its `context_mu`, or with
+        h_from="context" `read_context` of its transitions."""
+        if self.cfg.h_from == "context":
+            obs = context.obs
+            return self.read_context(params.enc, obs[..., :-1, :], context.action, obs[..., 1:, :],
+                                     episodes=obs.ndim == 3)
         return self.h_of_mu(params.enc, self.context_mu(params, context))
 
     # -- init ---------------------------------------------------------------------------------
@@ -380,6 +409,15 @@ class BeliefFBAgent(FBAgent):
             return state
         L, T, W, K = self.cfg.context_len, dataset.episode_len, self.num_windows, self.cfg.context_episodes
         E = dataset.num_episodes
+        from_context = self.cfg.h_from == "context"
+
+        def infer(obs, action, next_obs, episodes=False):
+            """What the table holds of a context, and its log sigma: (h, 0) with h_from="context"
+            (no sigma on its scale: h_noise is off), else (mu, log sigma)."""
+            if from_context:
+                h = self.read_context(state.params.enc, obs, action, next_obs, episodes)
+                return h, jnp.zeros_like(h)
+            return self.encode(state.params.enc, obs, action, next_obs, episodes=episodes)
         if K == 1:
             starts = jax.random.randint(key, (E, W), 0, T - L + 1)
             if W == 1 and L == T:
@@ -388,7 +426,7 @@ class BeliefFBAgent(FBAgent):
             def one_episode(args):
                 obs, action, st = args
                 idx = st[:, None] + jnp.arange(L)[None]                       # [W, L]
-                return self.encode(state.params.enc, obs[idx], action[idx], obs[idx + 1])  # 2 x [W, mu_dim]
+                return infer(obs[idx], action[idx], obs[idx + 1])  # 2 x [W, mu_dim] (h_dim: from_context)
 
             table, log_sigma = jax.lax.stop_gradient(
                 jax.lax.map(one_episode, (dataset.obs, dataset.action, starts), batch_size=256))
@@ -401,14 +439,12 @@ class BeliefFBAgent(FBAgent):
                 ep, st = args                                                 # [W, K] each
                 idx = st[..., None] + jnp.arange(L)                           # [W, K, L]
                 e = ep[..., None]
-                return self.encode(state.params.enc, dataset.obs[e, idx], dataset.action[e, idx],
-                                   dataset.obs[e, idx + 1], episodes=True)
+                return infer(dataset.obs[e, idx], dataset.action[e, idx], dataset.obs[e, idx + 1], episodes=True)
 
             table, log_sigma = jax.lax.stop_gradient(
                 jax.lax.map(one_context_set, (eps, starts), batch_size=max(1, 256 // K)))
-        if self.cfg.h_from == "context":  # h = c(mu); no sigma on its scale (h_noise is off)
-            h = self.h_of_mu(state.params.enc, table)
-            return state.replace(h_table=h, h_sigma_table=jnp.zeros_like(h))
+        if from_context:
+            return state.replace(h_table=table, h_sigma_table=jnp.zeros_like(table))
         if self.cfg.h_standardize:
             enc = dict(state.params.enc, h_mean=table.mean((0, 1)), h_std=table.std((0, 1)) + 1e-6)
         else:

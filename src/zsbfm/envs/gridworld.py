@@ -262,6 +262,13 @@ class GridWorld(EnvBase):
         (1 = wall)."""
         return ctx.walls.reshape(-1).astype(jnp.float32)
 
+    def cells_to_features(self, values: Array) -> Array:
+        """A value per `cell_index` [..., n_cells] at the cells `context_features` holds, in its
+        order: [..., (size - 2)^2] (the interior), so that
+        context_features(ctx) == cells_to_features(cell_walls(ctx))."""
+        grid = values.reshape(values.shape[:-1] + (self.size, self.size))
+        return grid[..., 1:-1, 1:-1].reshape(values.shape[:-1] + (-1,))
+
     # -- contexts -----------------------------------------------------------------------
     def contexts(self, split: str) -> GridContext:
         """Stacked fixed layouts of a split: walls bool[n, H, W]."""

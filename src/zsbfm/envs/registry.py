@@ -29,7 +29,8 @@ class EnvSpec:
     cell_map: bool = False            # positions fall in a map of cells: env.cell_index(obs), env.n_cells
     binary_context: bool = False      # env.context_features are 0/1 (a wall map): Config.context_loss="bce"
     revealed_context: bool = False    # env.revealed_features(obs, action, next_obs): Config.context_target="revealed"
-    pointed_cells: bool = False       # env.pointed_cell(obs, action), env.cell_walls(ctx): Config.enc_pool="evidence"
+    # env.pointed_cell(obs, action), env.cell_walls(ctx), env.cells_to_features(values): Config.enc_pool="evidence"
+    pointed_cells: bool = False
     shares_data: bool = False         # one dataset, recorded once and cached, for every seed (zsbfm.data.sources)
     presets: dict = dataclasses.field(default_factory=dict)         # size -> Config overrides
     belief_presets: dict = dataclasses.field(default_factory=dict)  # size -> bfb / rfb overrides

@@ -96,7 +96,8 @@ class EvidencePool(nn.Module):
     and the features are [log(1 + n^wall); log(1 + n^free)]. Sums are invariant to the tokens'
     order and unaffected by masked ones. The logits are sown in the "intermediates" collection
     ("cell_logits" [..., M, C], "wall_logit" [..., M]) so that the encoder loss can supervise
-    them (agents/belief.py `evidence_loss`): the cell a move points at and that cell's wall
+    them (agents/belief.py `evidence_loss`), and the counts ("n_wall", "n_free" [..., C]) so
+    that h can be read from them (Config.context_read): the cell a move points at and that cell's wall
     label are the same function of (s, a, s') in every layout, so, unlike a pool whose
     weights are free, what it learns on train layouts holds on unseen ones.
     """
@@ -112,6 +113,8 @@ class EvidencePool(nn.Module):
         p = jax.nn.softmax(logits, -1) * mask[..., None]
         s = jax.nn.sigmoid(wall)[..., None]
         n_wall, n_free = jnp.sum(p * s, -2), jnp.sum(p * (1.0 - s), -2)
+        self.sow("intermediates", "n_wall", n_wall)
+        self.sow("intermediates", "n_free", n_free)
         return jnp.concatenate([jnp.log1p(n_wall), jnp.log1p(n_free)], -1)
 
 
