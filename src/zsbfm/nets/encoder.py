@@ -96,10 +96,10 @@ class EvidencePool(nn.Module):
     and the features are [log(1 + n^wall); log(1 + n^free)]. Sums are invariant to the tokens'
     order and unaffected by masked ones. The logits are sown in the "intermediates" collection
     ("cell_logits" [..., M, C], "wall_logit" [..., M]) so that the encoder loss can supervise
-    them (agents/belief.py `evidence_loss`), and the counts ("n_wall", "n_free" [..., C]) so
-    that h can be read from them (Config.context_read): the cell a move points at and that cell's wall
+    them (agents/belief.py `evidence_loss`): the cell a move points at and that cell's wall
     label are the same function of (s, a, s') in every layout, so, unlike a pool whose
-    weights are free, what it learns on train layouts holds on unseen ones.
+    weights are free, what it learns on train layouts holds on unseen ones. The counts are
+    sown too ("n_wall", "n_free" [..., C]), so that h can be read from them (Config.context_read).
     """
 
     cells: int
