@@ -29,6 +29,7 @@ import numpy as np
 
 import zsbfm
 from zsbfm.evaluate import score_draws, standard_error
+from zsbfm.names import CONTEXT_READS
 
 from h_swap import with_encoder_of, with_read  # this script's folder is on sys.path
 
@@ -40,7 +41,7 @@ def main():
                    help="one per RUN (paired by position), or none")
     p.add_argument("--keys", type=int, default=8, help="evaluation draws: the run's own, then fresh ones")
     p.add_argument("--protocol", default="paper")
-    p.add_argument("--context-read", default="", choices=["", "head", "evidence"],
+    p.add_argument("--context-read", default="", choices=["", *CONTEXT_READS],
                    help="read h off the context this way (Config.context_read) instead of the run's own")
     p.add_argument("--context-episodes", type=int, default=0,
                    help="episodes per test-time context (0: the run's own context_episodes)")
@@ -60,10 +61,9 @@ def main():
         if encoder_of:
             run = with_encoder_of(run, encoder_of)
         run = with_read(run, a.context_read)
+        episodes = {"context_episodes": a.context_episodes} if a.context_episodes else {}  # else the run's own
         out = {"run": path, "encoder_of": encoder_of, "protocol": a.protocol, "keys": a.keys,
-               **({"context_read": run.cfg.context_read} if run.cfg.context_read != "head" else {}),
-               **({"context_episodes": a.context_episodes} if a.context_episodes else {})}
-        episodes = {"context_episodes": a.context_episodes} if a.context_episodes else {}
+               **({"context_read": run.cfg.context_read} if run.cfg.context_read != "head" else {}), **episodes}
         for split in ("train", "test"):
             scores = [float(x) for x in score_draws(run, a.keys, split, a.protocol, **episodes)[:, 0]]  # seed 0
             out[split] = scores

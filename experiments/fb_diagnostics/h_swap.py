@@ -39,6 +39,7 @@ import zsbfm
 from zsbfm.agents import make_agent
 from zsbfm.data.sources import make_env_for
 from zsbfm.evaluate import context_episode, protocol_score
+from zsbfm.names import CONTEXT_READS
 
 from context_coverage import varying_cells  # this script's folder is on sys.path
 
@@ -144,7 +145,7 @@ def main():
     p.add_argument("--map-contexts", type=int, default=8, help="fresh contexts per layout for the map error")
     p.add_argument("--encoder-of", default="", metavar="RUN_B",
                    help="score with RUN_B's encoder and head (both runs h_train_true)")
-    p.add_argument("--context-read", default="", choices=["", "head", "evidence"],
+    p.add_argument("--context-read", default="", choices=["", *CONTEXT_READS],
                    help="read h off the context this way (Config.context_read) instead of the run's own")
     p.add_argument("--json", default="")
     a = p.parse_args()
@@ -166,11 +167,10 @@ def main():
     if K > 1:  # the run's own context is K episodes
         agents = {name.replace("one episode", f"{K} episodes").replace("the episode's", f"{K} episodes'"): agent
                   for name, agent in agents.items()}
-    if run.cfg.context_read == "evidence":  # h is no longer c(mu) alone
-        agents = {name.replace("c(mu)", "evidence + c(mu)"): agent for name, agent in agents.items()}
+    h_name = "evidence + c(mu)" if run.cfg.context_read == "evidence" else "c(mu)"  # what h is read from
+    agents = {name.replace("c(mu)", h_name): agent for name, agent in agents.items()}
     own_name, rounded_name, revealed_name = (name for name in agents if name != "true wall map")
     variants = [(name, agent, None, None) for name, agent in agents.items()]
-    h_name = "evidence + c(mu)" if run.cfg.context_read == "evidence" else "c(mu)"
     for n in a.context_lens:
         variants += [(f"{h_name}, {n}-step context", agents[own_name], n, None),
                      (f"{h_name} rounded, {n}-step context", agents[rounded_name], n, None),
