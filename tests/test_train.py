@@ -228,10 +228,12 @@ def test_cli_train_runs(tmp_path, capsys):
 
     from tensorboard.backend.event_processing.event_accumulator import EventAccumulator
 
-    main(["train", "--env", "doors", "--seeds", "1", "--runs-dir", str(tmp_path), "--name", "cli",
+    # the widths of tests/test_cli.py's runs (official protocol only), so XLA's cache can
+    # serve whichever of them compiles second
+    main(["train", "--env", "doors", "--seeds", "2", "--runs-dir", str(tmp_path), "--name", "cli",
           "--set", "steps=10", "chunk_steps=5", "n_train_layouts=3", "episodes_per_layout=10",
           "d=8", "f_pre_hidden=16", "f_pre_out=16", "f_hidden=16", "b_hidden=16", "batch_size=16",
-          "eval_episode_len=10", "context_len=10", "--log", "tensorboard"])
+          "eval_episode_len=10", "context_len=10", "eval_protocols=official", "--log", "tensorboard"])
     out = capsys.readouterr().out
     assert "test  success" in out
     assert os.path.exists(tmp_path / "cli" / "results.json")
