@@ -9,7 +9,10 @@ protocol on train and test layouts, and of the dense protocol on train layouts, 
 updates (encoder pre-training steps not counted) and against cumulative FLOPs per seed
 (XLA's cost analysis, encoder phase included). --ref adds a recorded curve as points
 ("label:updates=score,updates=score"). The Markdown table gives, per run, the score at each
-evaluation and the first FLOPs per seed at which the mean train score reaches --target.
+evaluation, the first FLOPs per seed at which the mean train score reaches --target, and the
+train score averaged over the last --last evaluations (a steadier end point than the last
+evaluation alone: each seed's mean over those evaluations, then mean +- standard error over
+seeds).
 """
 
 from __future__ import annotations
@@ -50,6 +53,15 @@ def first_reach(curve: dict, key: str, target: float) -> float | None:
     return float(curve["flops"][hit[0]]) if len(hit) else None
 
 
+def last_mean(curve: dict, key: str, k: int) -> tuple[float, float, np.ndarray]:
+    """Mean over seeds of each seed's mean over the last k evaluations of `key`, its standard
+    error over seeds (0 for one seed), and the per-seed means [S]."""
+    per_seed = curve["scores"][key][-k:].mean(0)  # [T, S] -> [S]
+    n = per_seed.shape[0]
+    se = float(per_seed.std(ddof=1) / np.sqrt(n)) if n > 1 else 0.0
+    return float(per_seed.mean()), se, per_seed
+
+
 def main():
     p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("runs", nargs="+")
@@ -59,7 +71,10 @@ def main():
     p.add_argument("--target", type=float, default=0.70)
     p.add_argument("--ref", nargs="*", default=[], help='recorded curves, "label:20000=0.73,40000=0.8" (train, paper)')
     p.add_argument("--title", default="")
+    p.add_argument("--last", type=int, default=4, help="evaluations averaged for the steadier end point")
     a = p.parse_args()
+    if a.last < 1:
+        raise SystemExit(f"--last {a.last}: must be >= 1")
     labels = a.labels or [os.path.basename(r.rstrip("/")) for r in a.runs]
     if len(labels) != len(a.runs):
         raise SystemExit(f"--labels: {len(labels)} labels for {len(a.runs)} runs")
@@ -99,14 +114,18 @@ def main():
     fig.savefig(a.out, dpi=110)
     plt.close(fig)
 
-    lines = [f"| run | seeds | FB updates: train / test (paper protocol, mean over seeds) | TFLOP per seed to reach {a.target:.2f} on train |",
-             "|---|---|---|---|"]
+    lines = [f"| run | seeds | FB updates: train / test (paper protocol, mean over seeds) | TFLOP per seed to reach {a.target:.2f} on train "
+             f"| train, mean of the last {a.last} evaluations (seeds) |",
+             "|---|---|---|---|---|"]
     for c, label, run in zip(curves, labels, a.runs):
         tr, te = c["scores"]["train/paper"].mean(1), c["scores"]["test/paper"].mean(1)
         pts = ", ".join(f"{u / 1000:.0f}k {x:.2f} / {y:.2f}" for u, x, y in zip(c["updates"], tr, te))
         reach = first_reach(c, "train/paper", a.target)
+        mean, se, per_seed = last_mean(c, "train/paper", a.last)
+        span = f"{c['updates'][-min(a.last, len(c['updates']))] / 1000:.0f}k-{c['updates'][-1] / 1000:.0f}k"
         lines.append(f"| {label} (`{run}`) | {c['scores']['train/paper'].shape[1]} | {pts} | "
-                     f"{'not reached' if reach is None else f'{reach / 1e12:.0f}'} |")
+                     f"{'not reached' if reach is None else f'{reach / 1e12:.0f}'} | "
+                     f"{mean:.2f} +- {se:.2f} over {span} ({' / '.join(f'{v:.2f}' for v in per_seed)}) |")
     table = "\n".join(lines)
     print(table)
     if a.md:

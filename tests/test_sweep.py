@@ -3,6 +3,7 @@
 import dataclasses
 import json
 import os
+import sys
 
 import jax
 import jax.numpy as jnp
@@ -164,3 +165,18 @@ def test_evaluate_reproduces_the_run_results(tmp_path, algo):
             score, valid = zsbfm.evaluate(loaded, split="test", protocol=protocol)
             np.testing.assert_allclose(np.asarray(protocol_score(score, valid)),
                                        run.results["protocols"][protocol]["test"], atol=1e-4)
+
+
+def test_curves_last_mean_averages_each_seeds_last_evaluations_then_the_seeds():
+    """experiments/curves.py --last k: each seed's mean over its last k evaluations, then the
+    mean and standard error over seeds (hand numbers)."""
+    sys.path.insert(0, os.path.join(os.path.dirname(__file__), "..", "experiments"))
+    from curves import last_mean
+
+    scores = np.array([[0.0, 0.0, 0.0], [0.9, 0.9, 0.9], [0.6, 0.7, 0.8], [0.8, 0.7, 1.0]])  # [T=4, S=3]
+    mean, se, per_seed = last_mean({"scores": {"train/paper": scores}}, "train/paper", 2)
+    np.testing.assert_allclose(per_seed, [0.7, 0.7, 0.9])
+    assert mean == pytest.approx(23 / 30)
+    assert se == pytest.approx(np.sqrt(((0.7 - 23 / 30) ** 2 * 2 + (0.9 - 23 / 30) ** 2) / 2) / np.sqrt(3))
+    one = last_mean({"scores": {"train/paper": scores[:, :1]}}, "train/paper", 10)  # k past the start: all
+    assert one[0] == pytest.approx(0.575) and one[1] == 0.0
