@@ -24,6 +24,7 @@ import os
 import numpy as np
 
 from zsbfm.config import Config
+from zsbfm.evaluate import standard_error
 from zsbfm.plots import curve_arrays
 
 PANELS = (("train/paper", "paper protocol, train layouts"), ("test/paper", "paper protocol, test layouts"),
@@ -57,8 +58,7 @@ def last_mean(curve: dict, key: str, k: int) -> tuple[float, float, np.ndarray]:
     """Mean over seeds of each seed's mean over the last k evaluations of `key`, its standard
     error over seeds (0 for one seed), and the per-seed means [S]."""
     per_seed = curve["scores"][key][-k:].mean(0)  # [T, S] -> [S]
-    n = per_seed.shape[0]
-    se = float(per_seed.std(ddof=1) / np.sqrt(n)) if n > 1 else 0.0
+    se = float(standard_error(per_seed)) if per_seed.shape[0] > 1 else 0.0
     return float(per_seed.mean()), se, per_seed
 
 
