@@ -658,7 +658,7 @@ def test_staged_phases_touch_only_their_own_parameters():
     cfg = zsbfm.Config.preset("fourrooms", "bfb", n_train_layouts=2, episodes_per_layout=4, d=8,
                               f_pre_hidden=(8,), f_pre_out=8, f_hidden=(8,), b_hidden=(8,), batch_size=8,
                               enc_batch=2, enc_embed=8, enc_mlp=8, pred_hidden=(8,),
-                              enc_steps=1000, steps=2000)
+                              enc_steps=1000, steps=2000, eval_ema=0.5)
     env = zsbfm.make_env("fourrooms", n_train=2)
     agent = make_agent(cfg, env)
     ds = jax.jit(lambda k: collect(env, k, env.contexts("train"), 4))(jax.random.PRNGKey(0))
@@ -675,6 +675,9 @@ def test_staged_phases_touch_only_their_own_parameters():
     assert same(s1.params.enc["encoder"], s2.params.enc["encoder"])
     assert not same(s1.params.F, s2.params.F)
     assert np.isfinite(m2["fb_loss"]) and m2["enc_mse"] == 0
+    # the evaluation average counts FB updates only, and reads the online encoder
+    assert int(s1.average.n) == 0 and int(s2.average.n) == 1
+    assert same(agent.eval_params(s2).F, s2.params.F) and agent.eval_params(s2).enc is s2.params.enc
     fb_names = set(agent.phase_metrics(1000, m2))
     assert "fb_loss" in fb_names and set(m2) - fb_names == {"enc_mse", "enc_kl", "h_norm", "enc_nce"}
     assert not fb_names & set(agent.ENCODER_METRICS)

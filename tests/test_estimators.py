@@ -113,11 +113,45 @@ def test_lr_B_sets_the_backward_step_size():
     np.testing.assert_allclose(max(jax.tree_util.tree_leaves(step.B)), 1e-4, rtol=1e-3)
 
 
+def test_eval_ema_evaluates_the_running_mean_then_the_exponential_average_of_the_updates():
+    """With eval_ema = r, evaluation reads a_n = a_{n-1} + max(r, 1/n) (p_n - a_{n-1}) over
+    the online parameters p_1, p_2, ... after each update: the plain mean of p_1..p_n while
+    n <= 1/r, then an exponential average. Training is unchanged by it."""
+    env = zsbfm.make_env("fourrooms", n_train=2)
+    ds = collect(env, jax.random.PRNGKey(0), env.contexts("train"), 4)
+    small = dict(d=4, f_pre_hidden=(4,), f_pre_out=4, f_hidden=(4,), b_hidden=(4,), batch_size=16)
+    off = FBAgent(zsbfm.Config.preset("fourrooms", "fb", **small), env)
+    on = FBAgent(zsbfm.Config.preset("fourrooms", "fb", eval_ema=0.25, **small), env)
+    s_off, s_on = off.init(jax.random.PRNGKey(1)), on.init(jax.random.PRNGKey(1))
+    assert s_off.average is None and on.eval_params(s_on) is not None
+    up_off, up_on = jax.jit(off.update), jax.jit(on.update)
+    online, expect = [], None
+    for n in range(1, 7):
+        k = jax.random.PRNGKey(10 + n)
+        s_off, _ = up_off(s_off, ds, k)
+        s_on, _ = up_on(s_on, ds, k)
+        assert off.eval_params(s_off) is s_off.params
+        p = [np.asarray(x) for x in jax.tree_util.tree_leaves(s_on.params.F)]
+        online.append(p)
+        if n <= 4:    # 1/n >= r: the mean of every update so far
+            expect = [np.mean([o[i] for o in online], 0) for i in range(len(p))]
+        else:         # the exponential average at rate r from the mean of the first four
+            expect = [0.75 * e + 0.25 * x for e, x in zip(expect, p)]
+        got = jax.tree_util.tree_leaves(on.eval_params(s_on).F)
+        for g, e in zip(got, expect):
+            np.testing.assert_allclose(np.asarray(g), e, rtol=1e-5, atol=1e-6)
+    assert int(s_on.average.n) == 6
+    same = jax.tree_util.tree_map(np.array_equal, s_off.params, s_on.params)  # training unchanged
+    assert all(jax.tree_util.tree_leaves(same))
+    assert not np.array_equal(got[0], jax.tree_util.tree_leaves(s_on.params.F)[0])
+
+
 @pytest.mark.parametrize("field,value,match", [
     ("splus", "cells", "Config.splus='cells'"),
     ("clip_norm", -1.0, "Config.clip_norm=-1.0"),
     ("lr_B", -1e-3, "Config.lr_B=-0.001"),
     ("eval_every", -1, "Config.eval_every=-1"),
+    ("eval_ema", 1.0, "Config.eval_ema=1.0"),
     ("eval_protocols", "dense", "Config.eval_protocols='dense'"),
 ])
 def test_invalid_lever_values_raise_naming_the_field(field, value, match):

@@ -103,6 +103,7 @@ class Config:
     clip_norm: float = 0.0                    # global gradient-norm clip of F/B/actor (0: none)
     lr_B: float = 0.0                         # B's learning rate (0: lr)
     q_loss_coef: float = 0.0                  # weight of the TD loss on Q = F^T z itself (agents/fb.py q_loss; 0: off)
+    eval_ema: float = 0.0                     # evaluate an average of F/B/actor at this rate, over about 1/eval_ema updates (agents/fb.py ParamAverage; 0: the online parameters)
 
     # --- continuous actions (pointmass): TD3-style actor ------------------------------------
     actor_hidden: tuple[int, ...] = (256, 256)  # actor MLP hidden layers
@@ -220,6 +221,8 @@ class Config:
         if self.splus == "exact" and not spec.finite_states:
             bad("splus", self.splus, f"'batch' or 'states' for the continuous env {self.env!r} "
                 "('exact' sums over a finite state set)")
+        if not 0.0 <= self.eval_ema < 1.0:
+            bad("eval_ema", self.eval_ema, "0 <= eval_ema < 1 (0: evaluate the online parameters)")
         if not self.clip_norm >= 0:
             bad("clip_norm", self.clip_norm, "clip_norm >= 0 (0: no clipping)")
         if not self.q_loss_coef >= 0:

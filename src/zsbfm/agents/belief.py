@@ -61,7 +61,7 @@ import optax
 from flax import struct
 
 from zsbfm.agents.base import Context, Task
-from zsbfm.agents.fb import FBAgent, FBParams, mix_z
+from zsbfm.agents.fb import FBAgent, FBParams, ParamAverage, mix_z
 from zsbfm.data.samplers import Transitions, sample_states, sample_windows
 from zsbfm.nets.encoder import ContextEncoder, Predictor
 from zsbfm.nets.mlp import MLP
@@ -80,6 +80,7 @@ class BeliefState:
     enc_opt_state: Any        # encoder pre-training optimiser
     h_table: Array            # [episodes, windows, h_dim] F's h (h_of_mu), filled at step enc_steps (staged)
     h_sigma_table: Array      # [episodes, windows, h_dim] q's sigma on h's scale (read when Config.h_noise)
+    average: ParamAverage | None = None  # the evaluation average (Config.eval_ema > 0 only)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -240,7 +241,7 @@ class BeliefFBAgent(FBAgent):
         table = jnp.zeros((n_ep, self.num_windows, self.h_dim))
         return BeliefState(params=params, target=params, opt_state=self.optimizer.init(params),
                            step=jnp.zeros((), jnp.int32), enc_opt_state=self.enc_optimizer.init(enc),
-                           h_table=table, h_sigma_table=table)
+                           h_table=table, h_sigma_table=table, average=self.init_average(params))
 
     # -- encoder pre-training ------------------------------------------------------------------
     def encoder_loss(self, enc, window, target, key, context=None):
@@ -560,8 +561,7 @@ class BeliefFBAgent(FBAgent):
         grads, metrics = jax.grad(total_loss, has_aux=True)(state.params)
         updates, opt_state = self.optimizer.update(grads, state.opt_state, state.params)
         params = optax.apply_updates(state.params, updates)
-        target = self.update_target(params, state.target)
-        return state.replace(params=params, target=target, opt_state=opt_state, step=state.step + 1), metrics
+        return self.advance(state, params, opt_state), metrics
 
 
 @dataclasses.dataclass(frozen=True)

@@ -189,11 +189,29 @@ class FBParams:
 
 
 @struct.dataclass
+class ParamAverage:
+    """The parameters evaluation reads when Config.eval_ema = r > 0. After the n-th FB
+    update (n = 1, 2, ...), avg <- avg + max(r, 1/n) * (params - avg): the plain mean of
+    the first 1/r updates' parameters, then an exponential average over about 1/r updates.
+    Training never reads it (the targets are `FBState.target`, at rate tau)."""
+    params: FBParams
+    n: Array           # FB updates averaged so far (int32[])
+
+
+def average_update(avg: ParamAverage, params: FBParams, rate: float) -> ParamAverage:
+    """One step of `ParamAverage`'s recursion."""
+    n = avg.n + 1
+    step = jnp.maximum(rate, 1.0 / n.astype(jnp.float32))
+    return ParamAverage(params=optax.incremental_update(params, avg.params, step), n=n)
+
+
+@struct.dataclass
 class FBState:
     params: FBParams
     target: FBParams
     opt_state: Any
     step: Array
+    average: ParamAverage | None = None  # Config.eval_ema > 0 only
 
 
 # --- Agent -----------------------------------------------------------------------------------
@@ -297,10 +315,31 @@ class FBAgent:
     def init(self, key: Array) -> FBState:
         params = self.init_fb_params(*jax.random.split(key))
         return FBState(params=params, target=params, opt_state=self.optimizer.init(params),
-                       step=jnp.zeros((), jnp.int32))
+                       step=jnp.zeros((), jnp.int32), average=self.init_average(params))
+
+    def init_average(self, params: FBParams) -> ParamAverage | None:
+        """The evaluation average (Config.eval_ema > 0), before any update; else None."""
+        if self.cfg.eval_ema == 0:
+            return None
+        return ParamAverage(params=params, n=jnp.zeros((), jnp.int32))
 
     def eval_params(self, state: FBState) -> FBParams:
-        return state.params
+        """What acting reads: the online parameters, or with Config.eval_ema > 0 the average
+        of F, B and the actor (the encoder, and the statistics set beside it, are the online
+        ones: the belief flavours train and freeze them outside the FB update)."""
+        if state.average is None:
+            return state.params
+        return state.average.params.replace(enc=state.params.enc)
+
+    def advance(self, state, params: FBParams, opt_state):
+        """The state after one FB update to `params`: targets at rate tau (`update_target`),
+        the evaluation average when on, step + 1. `replace`, not a new FBState: the belief
+        flavours' states carry extra fields."""
+        average = state.average
+        if average is not None:
+            average = average_update(average, params, self.cfg.eval_ema)
+        return state.replace(params=params, target=self.update_target(params, state.target),
+                             opt_state=opt_state, average=average, step=state.step + 1)
 
     def update(self, state: FBState, dataset, key: Array, step: Array | None = None,
                stats: dict | None = None) -> tuple[FBState, dict]:
@@ -319,9 +358,7 @@ class FBAgent:
         aux = self.aux_batch(dataset, batch, k_aux, stats)
         grads, metrics = jax.grad(self.loss, has_aux=True)(state.params, state.target, batch, task, aux)
         params, opt_state = self.apply_grads(state.params, state.opt_state, grads)
-        target = self.update_target(params, state.target)
-        # replace, not a new FBState: the belief flavours' states carry extra fields.
-        return state.replace(params=params, target=target, opt_state=opt_state, step=state.step + 1), metrics
+        return self.advance(state, params, opt_state), metrics
 
     def apply_grads(self, params: FBParams, opt_state, grads: FBParams):
         """Clip (Config.clip_norm, global norm over all of F, B, actor), take the Adam step,
