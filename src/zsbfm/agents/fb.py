@@ -193,7 +193,8 @@ class ParamAverage:
     """The parameters evaluation reads when Config.eval_ema = r > 0. After the n-th FB
     update (n = 1, 2, ...), avg <- avg + max(r, 1/n) * (params - avg): the plain mean of
     the first 1/r updates' parameters, then an exponential average over about 1/r updates.
-    Training never reads it (the targets are `FBState.target`, at rate tau)."""
+    Training never reads it (the targets are `FBState.target`, at rate tau). enc is None:
+    evaluation reads the online encoder (`FBAgent.eval_params`), so it is not averaged."""
     params: FBParams
     n: Array           # FB updates averaged so far (int32[])
 
@@ -321,7 +322,7 @@ class FBAgent:
         """The evaluation average (Config.eval_ema > 0), before any update; else None."""
         if self.cfg.eval_ema == 0:
             return None
-        return ParamAverage(params=params, n=jnp.zeros((), jnp.int32))
+        return ParamAverage(params=params.replace(enc=None), n=jnp.zeros((), jnp.int32))
 
     def eval_params(self, state: FBState) -> FBParams:
         """What acting reads: the online parameters, or with Config.eval_ema > 0 the average
@@ -337,7 +338,7 @@ class FBAgent:
         flavours' states carry extra fields."""
         average = state.average
         if average is not None:
-            average = average_update(average, params, self.cfg.eval_ema)
+            average = average_update(average, params.replace(enc=None), self.cfg.eval_ema)
         return state.replace(params=params, target=self.update_target(params, state.target),
                              opt_state=opt_state, average=average, step=state.step + 1)
 
